@@ -1,0 +1,148 @@
+"""Typed, frozen configuration with the paper's values (and SPEC.md's choices) as defaults.
+
+Units: metres, seconds, radians. Every value is checked when the dataclass is built, so an
+impossible configuration fails at construction with the field's name and its allowed range.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+
+def _require(ok: bool, name: str, allowed: str, value: object) -> None:
+    if not ok:
+        raise ValueError(f"{name} must be {allowed}, got {value!r}")
+
+
+def _positive(name: str, value: float) -> None:
+    _require(math.isfinite(value) and value > 0, name, "a finite number > 0", value)
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    """Kinematic bicycle with its footprint, referenced at the rear axle centre."""
+
+    wheelbase: float = 4.0
+    width: float = 2.0
+    length: float = 5.0
+    rear_overhang: float = 0.5  # the box spans -0.5 m .. +4.5 m along the heading from the axle
+    dt: float = 0.1
+    max_speed: float = 5.0  # |v| limit, m/s
+    max_steer: float = 0.785  # |delta| limit, rad
+
+    def __post_init__(self) -> None:
+        for name in ("wheelbase", "width", "length", "dt", "max_speed", "max_steer"):
+            _positive(f"VehicleConfig.{name}", getattr(self, name))
+        _require(
+            0.0 <= self.rear_overhang < self.length,
+            "VehicleConfig.rear_overhang", f"in [0, length={self.length})", self.rear_overhang,
+        )
+        _require(self.max_steer < math.pi / 2, "VehicleConfig.max_steer", "< pi/2", self.max_steer)
+
+    @property
+    def centre_offset(self) -> float:
+        """Distance from the rear axle to the box centre along the heading, metres."""
+        return self.length / 2.0 - self.rear_overhang
+
+
+@dataclass(frozen=True)
+class LotConfig:
+    """The four-section lot of the paper; slot counts per section and the start-pose sampler."""
+
+    slot_width: float = 2.5
+    slot_length: float = 5.5
+    lane_width: float = 6.0
+    car_width: float = 2.0  # parked car box, centred in its slot along the slot heading
+    car_length: float = 5.0
+    upper_slots: int = 10
+    left_slots: int = 8
+    middle_slots: int = 12  # a back-to-back double row: half face +90 deg, half -90 deg
+    right_slots: int = 8
+    margin: float = 0.25  # gap between the outermost slots (or slot mouths) and the walls
+    wall_thickness: float = 1.0
+    start_candidates: int = 16  # uniform start poses tried per env per reset
+    start_pool_size: int = 4096  # valid poses drawn once, used when all candidates fail
+    pool_seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("slot_width", "slot_length", "lane_width", "car_width", "car_length",
+                     "wall_thickness"):
+            _positive(f"LotConfig.{name}", getattr(self, name))
+        _require(self.margin >= 0, "LotConfig.margin", ">= 0", self.margin)
+        for name in ("upper_slots", "left_slots", "middle_slots", "right_slots"):
+            n = getattr(self, name)
+            _require(isinstance(n, int) and 1 <= n, f"LotConfig.{name}", "an int >= 1", n)
+        _require(self.middle_slots % 2 == 0, "LotConfig.middle_slots", "even", self.middle_slots)
+        _require(
+            self.car_width < self.slot_width and self.car_length < self.slot_length,
+            "LotConfig.car_width/car_length", "smaller than the slot",
+            (self.car_width, self.car_length),
+        )
+        _require(self.start_candidates >= 0, "LotConfig.start_candidates", ">= 0",
+                 self.start_candidates)
+        _require(self.start_pool_size >= 1, "LotConfig.start_pool_size", ">= 1",
+                 self.start_pool_size)
+
+    @property
+    def num_slots(self) -> int:
+        return self.upper_slots + self.left_slots + self.middle_slots + self.right_slots
+
+
+@dataclass(frozen=True)
+class LidarConfig:
+    """Planar LIDAR from the vehicle box centre, rays at psi + 2 pi k / n_rays."""
+
+    n_rays: int = 16
+    max_range: float = 20.0  # the paper gives none
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.n_rays, int) and self.n_rays >= 1, "LidarConfig.n_rays",
+                 "an int >= 1", self.n_rays)
+        _positive("LidarConfig.max_range", self.max_range)
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Table 1 of the paper: r = (1 - cbrt(C)) + R_collision + R_success."""
+
+    w_x: float = 0.35
+    w_y: float = 0.35
+    w_alpha: float = 0.20
+    w_v: float = 0.10
+    collision_penalty: float = -200.0
+    success_bonus: float = 1000.0
+    success_threshold: float = 4e-4
+
+    def __post_init__(self) -> None:
+        for name in ("w_x", "w_y", "w_alpha", "w_v"):
+            value = getattr(self, name)
+            _require(math.isfinite(value) and value >= 0, f"RewardConfig.{name}", ">= 0", value)
+        for name in ("collision_penalty", "success_bonus"):
+            value = getattr(self, name)
+            _require(math.isfinite(value), f"RewardConfig.{name}", "finite", value)
+        _positive("RewardConfig.success_threshold", self.success_threshold)
+
+
+@dataclass(frozen=True)
+class ParkingConfig:
+    """Everything the environment is built from."""
+
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    lot: LotConfig = field(default_factory=LotConfig)
+    lidar: LidarConfig = field(default_factory=LidarConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    max_steps: int = 1000  # truncation
+    occupancy: float = 0.0  # initial obstacle occupancy in [0, 1]
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.max_steps, int) and self.max_steps >= 1,
+                 "ParkingConfig.max_steps", "an int >= 1", self.max_steps)
+        check_occupancy(self.occupancy, "ParkingConfig.occupancy")
+
+
+def check_occupancy(value: float, name: str = "occupancy") -> float:
+    """Return ``value`` as a float, or raise naming ``name`` when it is not in [0, 1]."""
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 <= value <= 1.0
+    _require(ok, name, "a number in [0, 1]", value)
+    return float(value)

@@ -1,0 +1,152 @@
+"""Oriented boxes in the plane: corners, SAT overlap and ray casting.
+
+A box is a tensor ``[..., 5]`` = (cx, cy, heading, half_length, half_width): centre in metres,
+heading in radians counter-clockwise from +x (the direction of the half_length axis), half
+extents in metres. Every function broadcasts over the leading dimensions, works for any float
+dtype and device, has no data-dependent control flow and compiles with
+``torch.compile(fullgraph=True)``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+# Smallest magnitude of a ray direction component in the slab test. 1 / 1e-18 times offsets
+# below 1e20 m stays finite in float32 (max 3.4e38).
+_PARALLEL_EPS = 1e-18
+
+
+def wrap_angle(angle: Tensor) -> Tensor:
+    """Wrap radians to (-pi, pi]. Shape and dtype are kept."""
+    wrapped = torch.remainder(angle + math.pi, 2.0 * math.pi) - math.pi
+    # remainder gives [-pi, pi); move -pi to +pi so the interval is (-pi, pi].
+    return torch.where(wrapped <= -math.pi, wrapped + 2.0 * math.pi, wrapped)
+
+
+class BoxFrame(NamedTuple):
+    """A box as separate component tensors, so constant boxes are prepared once.
+
+    Every field is [...]: centre (cx, cy) in metres; cos and sin of the heading; half_length
+    along the heading axis u = (cos, sin) and half_width along n = (-sin, cos), in metres.
+    Separate fields (not stacked [..., 2] pairs) keep compiled kernels fused: summing size-2
+    dims made the compiled LIDAR 2.5x slower.
+    """
+
+    cx: Tensor
+    cy: Tensor
+    cos: Tensor
+    sin: Tensor
+    half_length: Tensor
+    half_width: Tensor
+
+
+def box_frame(boxes: Tensor) -> BoxFrame:
+    """Split boxes [..., 5] into a :class:`BoxFrame` (one cos and sin per box)."""
+    heading = boxes[..., 2]
+    return BoxFrame(
+        boxes[..., 0], boxes[..., 1], torch.cos(heading), torch.sin(heading),
+        boxes[..., 3], boxes[..., 4],
+    )
+
+
+def box_corners(boxes: Tensor) -> Tensor:
+    """Corners of boxes, counter-clockwise from front-right.
+
+    boxes: [..., 5]. Returns [..., 4, 2] in metres, in the order front-right, front-left,
+    rear-left, rear-right, where front is +u and left is +n.
+    """
+    f = box_frame(boxes)
+    centre = boxes[..., :2]
+    hu = torch.stack((f.cos, f.sin), dim=-1) * f.half_length[..., None]
+    hn = torch.stack((-f.sin, f.cos), dim=-1) * f.half_width[..., None]
+    corners = (centre + hu - hn, centre + hu + hn, centre - hu + hn, centre - hu - hn)
+    return torch.stack(corners, dim=-2)
+
+
+def boxes_overlap(a: Tensor, b: Tensor) -> Tensor:
+    """Separating axis test between oriented boxes; touching counts as overlap.
+
+    a, b: [..., 5], broadcast against each other. Returns bool [...]: True when the closed boxes
+    share at least one point.
+    """
+    return frames_overlap(box_frame(a), box_frame(b))
+
+
+def frames_overlap(a: BoxFrame, b: BoxFrame) -> Tensor:
+    """:func:`boxes_overlap` on prepared frames (broadcasting). Returns bool [...].
+
+    The candidate axes are the two face normals of each box; the boxes are separated when, on
+    some axis, the distance between the centres' projections exceeds the sum of the two
+    projected half extents. Equality (touching) is not a separation.
+    """
+    dx, dy = b.cx - a.cx, b.cy - a.cy
+    # |cosines| between the axes of a (u_a, n_a) and of b (u_b, n_b), shared by all projections.
+    cos_ab = a.cos * b.cos + a.sin * b.sin  # u_a . u_b  =  n_a . n_b
+    sin_ab = a.cos * b.sin - a.sin * b.cos  # n_a . u_b  = -u_a . n_b
+    c, s = cos_ab.abs(), sin_ab.abs()
+    la, wa, lb, wb = a.half_length, a.half_width, b.half_length, b.half_width
+    sep_ua = (dx * a.cos + dy * a.sin).abs() > la + lb * c + wb * s
+    sep_na = (dy * a.cos - dx * a.sin).abs() > wa + lb * s + wb * c
+    sep_ub = (dx * b.cos + dy * b.sin).abs() > la * c + wa * s + lb
+    sep_nb = (dy * b.cos - dx * b.sin).abs() > la * s + wa * c + wb
+    return ~(sep_ua | sep_na | sep_ub | sep_nb)
+
+
+def ray_box_distance(origins: Tensor, angles: Tensor, boxes: Tensor, max_range: float) -> Tensor:
+    """Distance along rays to the boundary of oriented boxes (slab test in the box frame).
+
+    origins: [..., 2] metres; angles: [...] radians (world frame); boxes: [..., 5]; all three
+    broadcast together (origins and boxes without their last dimension). Returns [...] metres:
+    the distance to the first boundary point along the ray, 0 when the origin is inside or on the
+    box, and ``max_range`` when the ray misses or the hit lies farther than ``max_range``. Never
+    NaN or inf, also for rays parallel to an edge.
+    """
+    return ray_frame_distance(
+        origins[..., 0], origins[..., 1], torch.cos(angles), torch.sin(angles),
+        box_frame(boxes), max_range,
+    )
+
+
+def ray_frame_distance(
+    x: Tensor, y: Tensor, cos: Tensor, sin: Tensor, frame: BoxFrame, max_range: float
+) -> Tensor:
+    """:func:`ray_box_distance` on components: origins (x, y) and unit directions (cos, sin).
+
+    All arguments broadcast; a caller with many rays per box (LIDAR) computes each ray's
+    direction once and each box's frame once, instead of once per ray-box pair.
+    """
+    t_near, t_far = slab_interval(x, y, cos, sin, frame)
+    hit = (t_far >= t_near) & (t_far >= 0.0)
+    return torch.where(hit, t_near.clamp(min=0.0), max_range).clamp(max=max_range)
+
+
+def _away_from_zero(d: Tensor) -> Tensor:
+    """d with magnitudes below _PARALLEL_EPS raised to it, sign kept (0 becomes +)."""
+    tiny = torch.where(d < 0, -_PARALLEL_EPS, _PARALLEL_EPS)
+    return torch.where(d.abs() < _PARALLEL_EPS, tiny, d)
+
+
+def slab_interval(x: Tensor, y: Tensor, cos: Tensor, sin: Tensor, frame: BoxFrame
+                  ) -> tuple[Tensor, Tensor]:
+    """Parameter interval [t_near, t_far] where the line (x, y) + t (cos, sin) is in the box.
+
+    All arguments broadcast; (cos, sin) must be a unit vector, so t is in metres. The line
+    meets the closed box iff t_near <= t_far. Both are finite for lines parallel to an edge.
+    """
+    rx, ry = x - frame.cx, y - frame.cy
+    # Line origin and direction in the box frame (x along u, y along n).
+    ox, oy = rx * frame.cos + ry * frame.sin, ry * frame.cos - rx * frame.sin
+    dx, dy = cos * frame.cos + sin * frame.sin, sin * frame.cos - cos * frame.sin
+    # A direction component below _PARALLEL_EPS becomes +-_PARALLEL_EPS (sign kept, 0 -> +):
+    # the slab distances are then +-huge but finite, never inf - inf or 0 * inf.
+    ix, iy = 1.0 / _away_from_zero(dx), 1.0 / _away_from_zero(dy)
+    hx, hy = frame.half_length, frame.half_width
+    tx1, tx2 = (-hx - ox) * ix, (hx - ox) * ix
+    ty1, ty2 = (-hy - oy) * iy, (hy - oy) * iy
+    t_near = torch.maximum(torch.minimum(tx1, tx2), torch.minimum(ty1, ty2))
+    t_far = torch.minimum(torch.maximum(tx1, tx2), torch.maximum(ty1, ty2))
+    return t_near, t_far

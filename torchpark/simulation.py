@@ -1,0 +1,124 @@
+"""The batched parking step and reset as pure tensor functions (no Python branching on tensor
+values, no host sync, static shapes), composed from vehicle, geometry, lidar and reward.
+
+``ParkingEnv`` binds the constants with ``functools.partial`` and may ``torch.compile`` both
+functions with ``fullgraph=True``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from torchpark.config import ParkingConfig
+from torchpark.geometry import BoxFrame, frames_overlap
+from torchpark.lidar import lidar_scan
+from torchpark.lot import choose_start
+from torchpark.reward import is_success, parking_cost, parking_reward
+from torchpark.vehicle import bicycle_step, clamp_action, vehicle_frame
+
+OBS_NAMES = ("dx", "dy", "cos_psi", "sin_psi", "v", "cos_alpha", "sin_alpha")
+
+
+class World(NamedTuple):
+    """Constants shared by every env. obstacles: frame with fields (M,) = S parked-car boxes
+    then 4 walls; rotation: LIDAR line rotation (2, 2 * lines); goal_poses: (S, 3) rear-axle
+    goal pose of each slot; slots_and_walls: frame (S + 4,) that a start pose must not touch."""
+
+    obstacles: BoxFrame
+    rotation: Tensor
+    goal_poses: Tensor
+    slots_and_walls: BoxFrame
+
+
+class ParkingState(NamedTuple):
+    """Per-env state. pose (N, 3) rear axle (x m, y m, psi rad); speed (N,) m/s; goal (N, 3)
+    goal pose; valid (N, M) bool, obstacles present (parked cars, walls always); steps (N,)
+    int64 steps taken this episode; occupancy (N,) float32 the lot was drawn with."""
+
+    pose: Tensor
+    speed: Tensor
+    goal: Tensor
+    valid: Tensor
+    steps: Tensor
+    occupancy: Tensor
+
+
+class StepResult(NamedTuple):
+    """What one step emits; all (N, 1) except observation (N, 7 + n_rays) float32."""
+
+    observation: Tensor
+    reward: Tensor
+    terminated: Tensor
+    truncated: Tensor
+    done: Tensor
+    success: Tensor
+    collision: Tensor
+
+
+def observe(state: ParkingState, world: World, cfg: ParkingConfig) -> tuple[Tensor, Tensor, Tensor]:
+    """Observation (N, 7 + n_rays), collision (N,) bool and parking cost C (N,) of a state.
+
+    Observation: [dx, dy, cos psi, sin psi, v, cos alpha, sin alpha, lidar / max_range], with
+    dx, dy = goal - rear axle (world frame, m) and alpha the goal heading.
+    """
+    ego = vehicle_frame(state.pose, cfg.vehicle)
+    collision = (frames_overlap(BoxFrame(*(t[:, None] for t in ego)), world.obstacles)
+                 & state.valid).any(-1)
+    lidar = lidar_scan(ego.cx, ego.cy, ego.cos, ego.sin, world.rotation, world.obstacles,
+                       state.valid, cfg.lidar.n_rays, cfg.lidar.max_range)
+    dx = state.goal[:, 0] - state.pose[:, 0]
+    dy = state.goal[:, 1] - state.pose[:, 1]
+    alpha = state.goal[:, 2]
+    nav = torch.stack(
+        (dx, dy, ego.cos, ego.sin, state.speed, torch.cos(alpha), torch.sin(alpha)), dim=-1
+    )
+    observation = torch.cat((nav, lidar * (1.0 / cfg.lidar.max_range)), dim=-1)
+    cost = parking_cost(dx, dy, state.pose[:, 2], alpha, state.speed, cfg.reward)
+    return observation, collision, cost
+
+
+def parking_step(state: ParkingState, action: Tensor, world: World, cfg: ParkingConfig
+                 ) -> tuple[ParkingState, StepResult]:
+    """Advance every env by one step of (v, delta) actions (N, 2), clamped to the limits."""
+    v, delta = clamp_action(action, cfg.vehicle)
+    state = state._replace(
+        pose=bicycle_step(state.pose, v, delta, cfg.vehicle), speed=v, steps=state.steps + 1
+    )
+    observation, collision, cost = observe(state, world, cfg)
+    success = is_success(cost, cfg.reward)
+    reward = parking_reward(cost, collision, success, cfg.reward)
+    terminated = collision | success
+    truncated = (state.steps >= cfg.max_steps) & ~terminated
+    column = (reward, terminated, truncated, terminated | truncated, success, collision)
+    return state, StepResult(observation, *(t[:, None] for t in column))
+
+
+def reset_rows(state: ParkingState, observation: Tensor, mask: Tensor, goal_slot: Tensor,
+               occupied: Tensor, occupancy: Tensor, candidates: Tensor, fallback: Tensor,
+               world: World, cfg: ParkingConfig) -> tuple[ParkingState, Tensor]:
+    """New lots for the rows where ``mask`` (N,) is set; the other rows are returned untouched.
+
+    goal_slot (N,) int64, occupied (N, S) bool, occupancy (N,) float32: the drawn lot;
+    candidates (N, K, 3) and fallback (N, 3): start poses from ``lot.draw_start_candidates``.
+    Every row is computed and muxed with ``torch.where``: static shapes and no host sync, so
+    a partial reset compiles into the same graph as a full one.
+    """
+    walls = torch.ones(occupied.shape[0], world.obstacles.cx.shape[0] - occupied.shape[1],
+                       dtype=torch.bool, device=occupied.device)
+    fresh = ParkingState(
+        pose=choose_start(candidates, fallback, world.slots_and_walls, cfg.vehicle),
+        speed=torch.zeros_like(state.speed),
+        goal=world.goal_poses[goal_slot],
+        valid=torch.cat((occupied, walls), dim=-1),
+        steps=torch.zeros_like(state.steps),
+        occupancy=occupancy,
+    )
+    state = ParkingState(*(
+        torch.where(mask.view(-1, *([1] * (new.dim() - 1))), new, old)
+        for new, old in zip(fresh, state, strict=True)
+    ))
+    new_observation, _, _ = observe(state, world, cfg)
+    return state, torch.where(mask[:, None], new_observation, observation)

@@ -1,0 +1,50 @@
+"""Kinematic bicycle at the rear axle, and the vehicle's footprint box."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from torchpark.config import VehicleConfig
+from torchpark.geometry import BoxFrame, wrap_angle
+
+
+def clamp_action(action: Tensor, cfg: VehicleConfig) -> tuple[Tensor, Tensor]:
+    """Clamp actions [..., 2] = (v m/s, delta rad) to the vehicle limits; returns (v, delta)."""
+    v = action[..., 0].clamp(-cfg.max_speed, cfg.max_speed)
+    delta = action[..., 1].clamp(-cfg.max_steer, cfg.max_steer)
+    return v, delta
+
+
+def bicycle_step(pose: Tensor, v: Tensor, delta: Tensor, cfg: VehicleConfig) -> Tensor:
+    """One explicit Euler step of the kinematic bicycle.
+
+    pose: [..., 3] = (x m, y m, psi rad) of the rear axle centre; v: [...] m/s; delta: [...] rad.
+    Returns the next pose [..., 3] with psi wrapped to (-pi, pi]:
+    x += v cos(psi) dt, y += v sin(psi) dt, psi += v / L tan(delta) dt.
+    """
+    x, y, psi = pose.unbind(-1)
+    step = v * cfg.dt
+    x = x + step * torch.cos(psi)
+    y = y + step * torch.sin(psi)
+    psi = wrap_angle(psi + step * torch.tan(delta) / cfg.wheelbase)
+    return torch.stack((x, y, psi), dim=-1)
+
+
+def vehicle_frame(pose: Tensor, cfg: VehicleConfig) -> BoxFrame:
+    """Footprint of vehicles at rear-axle poses [..., 3] as a :class:`BoxFrame` with fields [...].
+
+    The box is ``length`` x ``width``, centred ``centre_offset`` ahead of the rear axle.
+    """
+    x, y, psi = pose.unbind(-1)
+    c, s = torch.cos(psi), torch.sin(psi)
+    half_length = torch.full_like(x, cfg.length / 2.0)
+    half_width = torch.full_like(x, cfg.width / 2.0)
+    offset = cfg.centre_offset
+    return BoxFrame(x + offset * c, y + offset * s, c, s, half_length, half_width)
+
+
+def vehicle_boxes(pose: Tensor, cfg: VehicleConfig) -> Tensor:
+    """Footprint of vehicles at rear-axle poses [..., 3] as boxes [..., 5]."""
+    f = vehicle_frame(pose, cfg)
+    return torch.stack((f.cx, f.cy, pose[..., 2], f.half_length, f.half_width), dim=-1)
