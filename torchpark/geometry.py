@@ -15,9 +15,10 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-# Smallest magnitude of a ray direction component in the slab test. 1 / 1e-18 times offsets
-# below 1e20 m stays finite in float32 (max 3.4e38).
-_PARALLEL_EPS = 1e-18
+# A unit ray direction component below this is parallel to the slab (|t| would exceed 1e12 m
+# per metre of offset); _FAR stands for an unbounded slab parameter, finite in float32.
+_PARALLEL_EPS = 1e-12
+_FAR = 1e30
 
 
 def wrap_angle(angle: Tensor) -> Tensor:
@@ -124,10 +125,19 @@ def ray_frame_distance(
     return torch.where(hit, t_near.clamp(min=0.0), max_range).clamp(max=max_range)
 
 
-def _away_from_zero(d: Tensor) -> Tensor:
-    """d with magnitudes below _PARALLEL_EPS raised to it, sign kept (0 becomes +)."""
-    tiny = torch.where(d < 0, -_PARALLEL_EPS, _PARALLEL_EPS)
-    return torch.where(d.abs() < _PARALLEL_EPS, tiny, d)
+def _slab(offset: Tensor, direction: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+    """Parameter interval [lo, hi] where offset + t direction is in [-half, half].
+
+    A direction below _PARALLEL_EPS is parallel to the slab: the interval is then everything
+    (-_FAR, _FAR) when |offset| <= half, else empty (lo = _FAR > hi = -_FAR). No inf, no NaN.
+    """
+    parallel = direction.abs() < _PARALLEL_EPS
+    inv = 1.0 / torch.where(parallel, 1.0, direction)
+    t1, t2 = (-half - offset) * inv, (half - offset) * inv
+    inside = offset.abs() <= half
+    lo = torch.where(parallel, torch.where(inside, -_FAR, _FAR), torch.minimum(t1, t2))
+    hi = torch.where(parallel, torch.where(inside, _FAR, -_FAR), torch.maximum(t1, t2))
+    return lo, hi
 
 
 def slab_interval(x: Tensor, y: Tensor, cos: Tensor, sin: Tensor, frame: BoxFrame
@@ -141,12 +151,6 @@ def slab_interval(x: Tensor, y: Tensor, cos: Tensor, sin: Tensor, frame: BoxFram
     # Line origin and direction in the box frame (x along u, y along n).
     ox, oy = rx * frame.cos + ry * frame.sin, ry * frame.cos - rx * frame.sin
     dx, dy = cos * frame.cos + sin * frame.sin, sin * frame.cos - cos * frame.sin
-    # A direction component below _PARALLEL_EPS becomes +-_PARALLEL_EPS (sign kept, 0 -> +):
-    # the slab distances are then +-huge but finite, never inf - inf or 0 * inf.
-    ix, iy = 1.0 / _away_from_zero(dx), 1.0 / _away_from_zero(dy)
-    hx, hy = frame.half_length, frame.half_width
-    tx1, tx2 = (-hx - ox) * ix, (hx - ox) * ix
-    ty1, ty2 = (-hy - oy) * iy, (hy - oy) * iy
-    t_near = torch.maximum(torch.minimum(tx1, tx2), torch.minimum(ty1, ty2))
-    t_far = torch.minimum(torch.maximum(tx1, tx2), torch.maximum(ty1, ty2))
-    return t_near, t_far
+    x_lo, x_hi = _slab(ox, dx, frame.half_length)
+    y_lo, y_hi = _slab(oy, dy, frame.half_width)
+    return torch.maximum(x_lo, y_lo), torch.minimum(x_hi, y_hi)

@@ -1,0 +1,174 @@
+"""An independent single-env reference of SPEC.md, in plain Python and numpy (float64).
+
+It shares no code with ``torchpark`` beyond reading the lot it is given: collision is a SAT on
+projected corners (not the centre/half-extent form), LIDAR intersects each ray with each box
+edge as a segment (not the slab test), and every loop is a Python loop. It is fed the lot of one
+env of a batched ``ParkingEnv`` and stepped with the same actions in the lockstep test; the
+throughput benchmark uses it as the per-env baseline, the way the paper's Gymnasium env steps.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def _wrap(angle: float) -> float:
+    wrapped = math.remainder(angle, 2.0 * math.pi)  # [-pi, pi]
+    return math.pi if wrapped <= -math.pi else wrapped
+
+
+def _corners(cx: float, cy: float, heading: float, half_length: float, half_width: float
+             ) -> np.ndarray:
+    c, s = math.cos(heading), math.sin(heading)
+    out = []
+    for a, b in ((1, -1), (1, 1), (-1, 1), (-1, -1)):
+        out.append((cx + a * half_length * c - b * half_width * s,
+                    cy + a * half_length * s + b * half_width * c))
+    return np.array(out)
+
+
+def _polygons_touch(p: np.ndarray, q: np.ndarray) -> bool:
+    """SAT on two convex quadrilaterals given by corners (4, 2); touching counts."""
+    for poly in (p, q):
+        for i in range(4):
+            edge = poly[(i + 1) % 4] - poly[i]
+            axis = np.array([-edge[1], edge[0]])
+            pp, qq = p @ axis, q @ axis
+            if pp.max() < qq.min() or qq.max() < pp.min():
+                return False
+    return True
+
+
+def _inside(point: np.ndarray, poly: np.ndarray) -> bool:
+    """Point in a counter-clockwise convex quadrilateral, boundary included."""
+    for i in range(4):
+        a, b = poly[i], poly[(i + 1) % 4]
+        if (b[0] - a[0]) * (point[1] - a[1]) - (b[1] - a[1]) * (point[0] - a[0]) < 0:
+            return False
+    return True
+
+
+def _ray_hit(origin: np.ndarray, direction: np.ndarray, poly: np.ndarray) -> float:
+    """Distance to the first crossing of the ray with the polygon's edges (inf if none)."""
+    if _inside(origin, poly):
+        return 0.0
+    best = math.inf
+    for i in range(4):
+        a, b = poly[i], poly[(i + 1) % 4]
+        e = b - a
+        denom = direction[0] * e[1] - direction[1] * e[0]
+        if denom == 0.0:
+            continue  # parallel: the adjacent edges give the hit, if any
+        w = a - origin
+        t = (w[0] * e[1] - w[1] * e[0]) / denom
+        u = (w[0] * direction[1] - w[1] * direction[0]) / denom
+        if t >= 0.0 and 0.0 <= u <= 1.0:
+            best = min(best, t)
+    return best
+
+
+@dataclass
+class ReferenceConfig:
+    wheelbase: float = 4.0
+    width: float = 2.0
+    length: float = 5.0
+    rear_overhang: float = 0.5
+    dt: float = 0.1
+    max_speed: float = 5.0
+    max_steer: float = 0.785
+    n_rays: int = 16
+    max_range: float = 20.0
+    weights: tuple[float, float, float, float] = (0.35, 0.35, 0.20, 0.10)
+    collision_penalty: float = -200.0
+    success_bonus: float = 1000.0
+    success_threshold: float = 4e-4
+    max_steps: int = 1000
+
+
+class ReferenceParkingEnv:
+    """One parking lot: obstacles (K, 5) boxes, a goal pose and a start pose, stepped in Python."""
+
+    def __init__(self, obstacles: np.ndarray, goal: np.ndarray, pose: np.ndarray,
+                 cfg: ReferenceConfig, speed: float = 0.0, steps: int = 0) -> None:
+        self.cfg = cfg
+        self.obstacles = [_corners(*map(float, box)) for box in np.asarray(obstacles)]
+        self.goal = [float(v) for v in goal]
+        self.x, self.y, self.psi = (float(v) for v in pose)
+        self.v = float(speed)
+        self.steps = int(steps)
+
+    @classmethod
+    def from_batched(cls, env, index: int) -> ReferenceParkingEnv:
+        """The lot and state of env ``index`` of a ``torchpark.ParkingEnv``."""
+        c = env.config
+        cfg = ReferenceConfig(
+            wheelbase=c.vehicle.wheelbase, width=c.vehicle.width, length=c.vehicle.length,
+            rear_overhang=c.vehicle.rear_overhang, dt=c.vehicle.dt,
+            max_speed=c.vehicle.max_speed, max_steer=c.vehicle.max_steer,
+            n_rays=c.lidar.n_rays, max_range=c.lidar.max_range,
+            weights=(c.reward.w_x, c.reward.w_y, c.reward.w_alpha, c.reward.w_v),
+            collision_penalty=c.reward.collision_penalty, success_bonus=c.reward.success_bonus,
+            success_threshold=c.reward.success_threshold, max_steps=c.max_steps,
+        )
+        state = env.state
+        boxes = env.layout.obstacles.double().cpu().numpy()
+        present = state.valid[index].cpu().numpy()
+        return cls(boxes[present], state.goal[index].double().cpu().numpy(),
+                   state.pose[index].double().cpu().numpy(), cfg,
+                   speed=float(state.speed[index]), steps=int(state.steps[index]))
+
+    def _ego(self) -> np.ndarray:
+        cfg = self.cfg
+        offset = cfg.length / 2.0 - cfg.rear_overhang
+        cx = self.x + offset * math.cos(self.psi)
+        cy = self.y + offset * math.sin(self.psi)
+        return _corners(cx, cy, self.psi, cfg.length / 2.0, cfg.width / 2.0)
+
+    def observation(self) -> np.ndarray:
+        cfg = self.cfg
+        ego = self._ego()
+        centre = ego.mean(axis=0)
+        lidar = []
+        for k in range(cfg.n_rays):
+            angle = self.psi + 2.0 * math.pi * k / cfg.n_rays
+            direction = np.array([math.cos(angle), math.sin(angle)])
+            nearest = min((_ray_hit(centre, direction, poly) for poly in self.obstacles),
+                          default=math.inf)
+            lidar.append(min(nearest, cfg.max_range) / cfg.max_range)
+        gx, gy, alpha = self.goal
+        nav = [gx - self.x, gy - self.y, math.cos(self.psi), math.sin(self.psi), self.v,
+               math.cos(alpha), math.sin(alpha)]
+        return np.array(nav + lidar)
+
+    def collision(self) -> bool:
+        ego = self._ego()
+        return any(_polygons_touch(ego, poly) for poly in self.obstacles)
+
+    def cost(self) -> float:
+        wx, wy, wa, wv = self.cfg.weights
+        gx, gy, alpha = self.goal
+        return (wx * abs(gx - self.x) + wy * abs(gy - self.y)
+                + wa * abs(_wrap(alpha - self.psi)) + wv * abs(self.v))
+
+    def step(self, action) -> dict:
+        cfg = self.cfg
+        v = min(max(float(action[0]), -cfg.max_speed), cfg.max_speed)
+        delta = min(max(float(action[1]), -cfg.max_steer), cfg.max_steer)
+        self.x += v * math.cos(self.psi) * cfg.dt
+        self.y += v * math.sin(self.psi) * cfg.dt
+        self.psi = _wrap(self.psi + v / cfg.wheelbase * math.tan(delta) * cfg.dt)
+        self.v = v
+        self.steps += 1
+        cost = self.cost()
+        collision = self.collision()
+        success = cost < cfg.success_threshold
+        reward = 1.0 - math.cbrt(cost)
+        reward += cfg.collision_penalty if collision else 0.0
+        reward += cfg.success_bonus if success else 0.0
+        terminated = collision or success
+        truncated = self.steps >= cfg.max_steps and not terminated
+        return {"observation": self.observation(), "reward": reward, "terminated": terminated,
+                "truncated": truncated, "success": success, "collision": collision}
