@@ -135,6 +135,7 @@ class ParkingEnv(EnvBase):
         self._state = ParkingState(
             pose=torch.zeros(n, 3, device=dev),
             speed=torch.zeros(n, device=dev),
+            goal_slot=torch.zeros(n, dtype=torch.int64, device=dev),
             goal=torch.zeros(n, 3, device=dev),
             valid=torch.zeros(n, m, dtype=torch.bool, device=dev),
             steps=torch.zeros(n, dtype=torch.int64, device=dev),

@@ -228,6 +228,11 @@ def choose_start(candidates: Tensor, fallback: Tensor, blocked: BoxFrame,
     if candidates.shape[1] == 0:
         return fallback
     valid = start_pose_valid(candidates, blocked, vehicle)
-    first = valid.to(torch.uint8).argmax(dim=1)  # index of the first valid candidate
+    k = candidates.shape[1]
+    # Index of the first valid candidate (k - 1 when none is; the fallback is taken then). A
+    # masked min rather than argmax: inductor's vectorised argmax over a uint8 mask returned
+    # out-of-range indices (torch 2.13, CPU).
+    index = torch.arange(k, device=candidates.device)
+    first = torch.where(valid, index, k - 1).amin(dim=1)
     chosen = candidates.gather(1, first[:, None, None].expand(-1, 1, 3))[:, 0]
     return torch.where(valid.any(dim=1, keepdim=True), chosen, fallback)

@@ -34,12 +34,14 @@ class World(NamedTuple):
 
 
 class ParkingState(NamedTuple):
-    """Per-env state. pose (N, 3) rear axle (x m, y m, psi rad); speed (N,) m/s; goal (N, 3)
-    goal pose; valid (N, M) bool, obstacles present (parked cars, walls always); steps (N,)
-    int64 steps taken this episode; occupancy (N,) float32 the lot was drawn with."""
+    """Per-env state. pose (N, 3) rear axle (x m, y m, psi rad); speed (N,) m/s; goal_slot
+    (N,) int64; goal (N, 3) its goal pose; valid (N, M) bool, obstacles present (parked cars,
+    walls always); steps (N,) int64 steps taken this episode; occupancy (N,) float32 the lot
+    was drawn with."""
 
     pose: Tensor
     speed: Tensor
+    goal_slot: Tensor
     goal: Tensor
     valid: Tensor
     steps: Tensor
@@ -111,6 +113,7 @@ def reset_rows(state: ParkingState, observation: Tensor, mask: Tensor, goal_slot
     fresh = ParkingState(
         pose=choose_start(candidates, fallback, world.slots_and_walls, cfg.vehicle),
         speed=torch.zeros_like(state.speed),
+        goal_slot=goal_slot,
         goal=world.goal_poses[goal_slot],
         valid=torch.cat((occupied, walls), dim=-1),
         steps=torch.zeros_like(state.steps),

@@ -1,0 +1,267 @@
+"""ParkingEnv behaviour: specs, resets, reward, termination, input checks, determinism."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.collectors import Collector
+from torchrl.envs import InitTracker, TransformedEnv
+from torchrl.envs.utils import check_env_specs
+
+from torchpark import LidarConfig, ParkingConfig, ParkingEnv, RewardConfig
+from torchpark.simulation import ParkingState
+
+
+def place(env: ParkingEnv, pose: torch.Tensor, rows: torch.Tensor | slice = slice(None)) -> None:
+    """Teleport the rear axle of ``rows`` to ``pose`` (test helper)."""
+    new = env.state.pose.clone()
+    new[rows] = pose
+    env._state = env.state._replace(pose=new)
+
+
+def act(env: ParkingEnv, action) -> TensorDict:
+    action = torch.as_tensor(action, dtype=torch.float32).expand(env.num_envs, 2)
+    return env.step(TensorDict({"action": action}, batch_size=env.batch_size))["next"]
+
+
+def random_actions(n: int, steps: int, seed: int) -> torch.Tensor:
+    gen = torch.Generator().manual_seed(seed)
+    return (torch.rand(steps, n, 2, generator=gen) * 2 - 1) * torch.tensor([5.0, 0.785])
+
+
+@pytest.mark.parametrize("num_envs", [1, 5])
+def test_check_env_specs(num_envs):
+    check_env_specs(ParkingEnv(num_envs, seed=0))
+
+
+def test_observation_layout_at_reset():
+    env = ParkingEnv(4, seed=0)
+    obs = env.reset()["observation"]
+    s = env.state
+    assert obs.shape == (4, 23) and obs.dtype == torch.float32
+    assert torch.allclose(obs[:, 0], s.goal[:, 0] - s.pose[:, 0])
+    assert torch.allclose(obs[:, 1], s.goal[:, 1] - s.pose[:, 1])
+    assert torch.allclose(obs[:, 2], torch.cos(s.pose[:, 2]))
+    assert torch.allclose(obs[:, 3], torch.sin(s.pose[:, 2]))
+    assert (obs[:, 4] == 0).all()
+    assert torch.allclose(obs[:, 5], torch.cos(s.goal[:, 2]))
+    assert ((obs[:, 7:] >= 0) & (obs[:, 7:] <= 1)).all()
+
+
+def test_partial_reset_leaves_other_rows_bit_identical():
+    env = ParkingEnv(16, seed=1)
+    td = env.reset()
+    for a in random_actions(16, 5, 0):
+        td = env.step(td.set("action", a))["next"]
+    before = [t.clone() for t in env.state]
+    mask = torch.zeros(16, 1, dtype=torch.bool)
+    mask[[2, 7, 11]] = True
+    # torchrl's contract: the input carries the un-reset rows' data, the env's _reset
+    # returns every row; both must keep the un-reset rows bit for bit.
+    own = env._reset(TensorDict({"_reset": mask}, batch_size=[16]))
+    keep = ~mask[:, 0]
+    for old, new in zip(before, env.state, strict=True):
+        assert torch.equal(old[keep], new[keep])
+    assert torch.equal(own["observation"][keep], td["observation"][keep])
+    env._state = ParkingState(*before)
+    out = env.reset(td.clone().set("_reset", mask))
+    assert torch.equal(out["observation"][keep], td["observation"][keep])
+    assert (env.state.steps[~keep] == 0).all() and (env.state.speed[~keep] == 0).all()
+    assert not torch.equal(before[0][~keep], env.state.pose[~keep])
+
+
+def test_reward_recomputed_from_observation():
+    env = ParkingEnv(32, seed=2)
+    env.occupancy = 0.6
+    rollout = env.rollout(60, policy=None, break_when_any_done=False)
+    nxt = rollout["next"]
+    obs, reward = nxt["observation"], nxt["reward"][..., 0]
+    live = ~nxt["terminated"][..., 0]
+    assert live.sum() > 1000
+    psi = torch.atan2(obs[..., 3], obs[..., 2])
+    alpha = torch.atan2(obs[..., 6], obs[..., 5])
+    dalpha = torch.remainder(alpha - psi + math.pi, 2 * math.pi) - math.pi
+    cost = (0.35 * obs[..., 0].abs() + 0.35 * obs[..., 1].abs() + 0.2 * dalpha.abs()
+            + 0.1 * obs[..., 4].abs())
+    expected = 1 - cost ** (1 / 3)
+    assert torch.allclose(reward[live], expected[live], atol=1e-5)
+    collided = nxt["collision"][..., 0]
+    assert collided.any()
+    assert torch.allclose(reward[collided], expected[collided] - 200, atol=1e-4)
+
+
+def test_driving_into_a_wall_collides_and_terminates():
+    env = ParkingEnv(1, seed=0)
+    env.reset()
+    width = env.layout.width
+    # Facing +x, front bumper 0.3 m from the right wall; on the bottom lane, away from slots.
+    place(env, torch.tensor([width - 4.5 - 0.3, 3.0, 0.0]))
+    first = act(env, [2.0, 0.0])  # 0.2 m: still clear
+    assert not first["collision"].item() and not first["done"].item()
+    second = act(env, [2.0, 0.0])  # 0.4 m: through the wall line
+    assert second["collision"].item() and second["terminated"].item() and second["done"].item()
+    assert not second["truncated"].item()
+    obs = second["observation"][0]
+    cost = 0.35 * obs[0].abs() + 0.35 * obs[1].abs() + 0.1 * 2.0 + 0.2 * abs(
+        math.remainder(math.atan2(obs[6], obs[5]) - math.atan2(obs[3], obs[2]), 2 * math.pi))
+    assert second["reward"].item() == pytest.approx(1 - cost ** (1 / 3) - 200, abs=1e-4)
+
+
+def test_touching_the_wall_counts():
+    env = ParkingEnv(1, seed=0)
+    env.reset()
+    place(env, torch.tensor([env.layout.width - 4.5 - 0.25, 3.0, 0.0]))
+    assert act(env, [2.5, 0.0])["collision"].item()  # front exactly on the wall's face
+
+
+def test_placing_the_car_on_its_goal_succeeds():
+    env = ParkingEnv(8, seed=3)
+    env.occupancy = 0.9
+    env.reset()
+    place(env, env.state.goal)
+    out = act(env, [0.0, 0.0])
+    assert out["success"].all() and out["terminated"].all() and not out["collision"].any()
+    assert torch.allclose(out["reward"], torch.full((8, 1), 1001.0))
+
+
+def test_driving_onto_the_goal_succeeds_within_threshold():
+    env = ParkingEnv(4, seed=4)
+    env.reset()
+    goal = env.state.goal
+    back = torch.stack((torch.cos(goal[:, 2]), torch.sin(goal[:, 2])), -1) * 1e-4
+    place(env, torch.cat((goal[:, :2] - back, goal[:, 2:]), -1))
+    out = act(env, [1e-3, 0.0])  # 0.1 mm forward at 1 mm/s: C ~ 1e-4 < 4e-4
+    assert out["success"].all()
+    assert (out["reward"] > 1000.9).all()
+
+
+def test_truncation_at_step_limit():
+    env = ParkingEnv(3, seed=5, config=ParkingConfig(max_steps=7))
+    env.reset()
+    for step in range(1, 8):
+        out = act(env, [0.0, 0.0])  # standing still: no collision, no success
+        assert out["truncated"].all() == (step == 7)
+        assert out["done"].all() == (step == 7) and not out["terminated"].any()
+
+
+def test_out_of_range_actions_are_clamped():
+    a, b = ParkingEnv(2, seed=6), ParkingEnv(2, seed=6)
+    a.reset(), b.reset()
+    out_a = act(a, [[50.0, 3.0], [-50.0, -3.0]])
+    out_b = act(b, [[5.0, 0.785], [-5.0, -0.785]])
+    assert torch.equal(out_a["observation"], out_b["observation"])
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_non_finite_action_raises(bad):
+    env = ParkingEnv(2, seed=0)
+    env.reset()
+    with pytest.raises(ValueError, match="action must be finite"):
+        act(env, [[1.0, 0.0], [bad, 0.0]])
+
+
+@pytest.mark.parametrize("shape", [(2,), (4, 2), (3, 3), (3, 2, 1)])
+def test_wrong_action_shape_raises(shape):
+    env = ParkingEnv(3, seed=0)
+    env.reset()
+    with pytest.raises(ValueError, match=r"action must have shape \(3, 2\)"):
+        env._step(TensorDict({"action": torch.zeros(shape)}, batch_size=[]))
+
+
+@pytest.mark.parametrize("n", [0, -1, 2.5, True])
+def test_bad_num_envs_raises(n):
+    with pytest.raises(ValueError, match="num_envs must be an int >= 1"):
+        ParkingEnv(n)
+
+
+@pytest.mark.parametrize("p", [-0.1, 1.5, float("nan"), "0.5"])
+def test_bad_occupancy_raises(p):
+    env = ParkingEnv(1)
+    with pytest.raises(ValueError, match=r"occupancy must be a number in \[0, 1\]"):
+        env.occupancy = p
+    with pytest.raises(ValueError, match=r"ParkingConfig.occupancy must be a number in \[0, 1\]"):
+        ParkingConfig(occupancy=p)
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda: LidarConfig(n_rays=0), "n_rays"),
+    (lambda: LidarConfig(max_range=-1.0), "max_range"),
+    (lambda: RewardConfig(success_threshold=0.0), "success_threshold"),
+    (lambda: ParkingConfig(max_steps=0), "max_steps"),
+])
+def test_impossible_configs_raise(make, match):
+    with pytest.raises(ValueError, match=match):
+        make()
+
+
+def test_same_seed_same_rollout_and_other_seed_differs():
+    actions = random_actions(8, 120, 7)
+
+    def run(seed):
+        env = ParkingEnv(8, seed=seed)
+        env.occupancy = 0.4
+        td = env.reset()
+        out = [td["observation"]]
+        for a in actions:
+            td = env.step_and_maybe_reset(TensorDict({**td, "action": a}, batch_size=[8]))[1]
+            out.append(td["observation"])
+        return torch.stack(out)
+
+    first, second = run(11), run(11)
+    assert torch.equal(first, second)
+    assert not torch.equal(first, run(12))
+
+
+def test_set_seed_reproduces():
+    env = ParkingEnv(4)
+    env.set_seed(3)
+    a = env.reset()["observation"]
+    env.set_seed(3)
+    assert torch.equal(a, env.reset()["observation"])
+
+
+def test_n_rays_option_changes_the_observation():
+    env = ParkingEnv(2, seed=0, config=ParkingConfig(lidar=LidarConfig(n_rays=32)))
+    assert env.reset()["observation"].shape == (2, 39)
+    check_env_specs(ParkingEnv(2, seed=0, config=ParkingConfig(lidar=LidarConfig(n_rays=5))))
+
+
+def test_collector_auto_resets_and_keeps_the_extra_keys():
+    env = TransformedEnv(ParkingEnv(16, seed=8, config=ParkingConfig(max_steps=20)), InitTracker())
+    env.base_env.occupancy = 0.8
+    collector = Collector(env, None, frames_per_batch=16 * 25, total_frames=16 * 50)
+    batches = list(collector)
+    collector.shutdown()
+    assert len(batches) == 2
+    batch = batches[1]
+    assert batch.shape == (16, 25)
+    nxt = batch["next"]
+    assert nxt["done"].any()  # truncation after 20 steps at the latest
+    for key in ("success", "collision", "occupancy"):
+        assert key in nxt.keys()
+    assert (nxt["occupancy"] == 0.8).all()
+    # Episodes restart after done: the step counter implied by is_init matches.
+    assert batch["is_init"].sum() >= 16
+
+
+def test_compiled_step_is_one_graph_and_matches_eager():
+    """compile_step=True compiles step and reset with fullgraph=True: any graph break raises."""
+    actions = random_actions(64, 40, 9)
+    outs = []
+    for compiled in (False, True):
+        env = ParkingEnv(64, seed=10, compile_step=compiled)
+        env.occupancy = 0.6
+        td = env.reset()
+        seq = []
+        for a in actions:
+            td_out, td = env.step_and_maybe_reset(TensorDict({**td, "action": a}, batch_size=[64]))
+            seq.append(td_out["next"].select("observation", "reward", "done", "collision"))
+        outs.append(torch.stack(seq))
+    eager, compiled = outs
+    assert torch.equal(eager["done"], compiled["done"])
+    assert torch.equal(eager["collision"], compiled["collision"])
+    assert torch.allclose(eager["observation"], compiled["observation"], atol=1e-4)
+    assert torch.allclose(eager["reward"], compiled["reward"], atol=1e-3)
