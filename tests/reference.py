@@ -115,7 +115,7 @@ class ReferenceParkingEnv:
         )
         state = env.state
         boxes = env.layout.obstacles.double().cpu().numpy()
-        present = state.valid[index].cpu().numpy()
+        present = state.present[index].cpu().numpy() > 0
         return cls(boxes[present], state.goal[index].double().cpu().numpy(),
                    state.pose[index].double().cpu().numpy(), cfg,
                    speed=float(state.speed[index]), steps=int(state.steps[index]))

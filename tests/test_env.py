@@ -110,6 +110,19 @@ def test_driving_into_a_wall_collides_and_terminates():
     assert second["reward"].item() == pytest.approx(1 - cost ** (1 / 3) - 200, abs=1e-4)
 
 
+def test_standing_in_an_empty_slot_is_no_collision_but_a_parked_car_is():
+    env = ParkingEnv(2, seed=0)
+    env.occupancy = 0.5
+    env.reset()
+    present = env.state.present[:, : env.layout.num_slots]
+    empty = int(torch.nonzero((present[0] == 0) & (torch.arange(present.shape[1]) !=
+                                                   env.state.goal_slot[0]))[0])
+    full = int(torch.nonzero(present[1] == 1)[0])
+    place(env, env.layout.goal_poses[[empty, full]])
+    out = act(env, [0.0, 0.0])
+    assert out["collision"][:, 0].tolist() == [False, True]
+
+
 def test_touching_the_wall_counts():
     env = ParkingEnv(1, seed=0)
     env.reset()

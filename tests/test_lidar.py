@@ -21,8 +21,8 @@ def test_scan_matches_per_ray_loop(n_rays, layout):
     x = torch.rand(n, generator=gen) * layout.width
     y = torch.rand(n, generator=gen) * layout.height
     psi = (torch.rand(n, generator=gen) * 2 - 1) * math.pi
-    got = lidar_scan(x, y, torch.cos(psi), torch.sin(psi), line_rotation(n_rays), frame, valid,
-                     n_rays, 20.0)
+    got = lidar_scan(x, y, torch.cos(psi), torch.sin(psi), line_rotation(n_rays), frame,
+                     valid.float(), n_rays, 20.0)
     assert got.shape == (n, n_rays)
     for i in range(n):
         for k in range(n_rays):
@@ -36,5 +36,6 @@ def test_scan_sees_max_range_in_the_open_and_zero_inside_a_box():
     frame = box_frame(torch.tensor([[0.0, 0.0, 0.3, 1.0, 1.0]]))
     valid = torch.tensor([[True], [True], [False]])
     x, y = torch.tensor([0.2, 100.0, 0.2]), torch.zeros(3)
-    out = lidar_scan(x, y, torch.ones(3), torch.zeros(3), line_rotation(16), frame, valid, 16, 20.0)
+    out = lidar_scan(x, y, torch.ones(3), torch.zeros(3), line_rotation(16), frame, valid.float(),
+                     16, 20.0)
     assert (out[0] == 0).all() and (out[1] == 20).all() and (out[2] == 20).all()

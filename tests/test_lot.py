@@ -85,11 +85,12 @@ def test_draws_over_seeds_and_levels(seed, occupancy, layout, config):
     td = env.reset()
     state = env.state
     slots = layout.num_slots
-    parked = state.valid[:, :slots]
+    parked = state.present[:, :slots] > 0
     expected = math.floor(occupancy * (slots - 1) + 0.5)
     assert (parked.sum(1) == expected).all()
     assert not parked.gather(1, state.goal_slot[:, None]).any()  # goal slot never occupied
-    assert state.valid[:, slots:].all()  # walls always present
+    assert (state.present[:, slots:] == 1).all()  # walls always present
+    assert ((state.present == 0) | (state.present == 1)).all()
     assert torch.equal(state.goal, layout.goal_poses[state.goal_slot])
     assert torch.all(td["occupancy"] == occupancy)
     # Start poses: independent shapely check against every slot and wall, no success.
@@ -109,7 +110,7 @@ def test_goals_and_parked_slots_are_spread_uniformly():
     env.reset()
     slots = env.layout.num_slots
     goal_counts = torch.bincount(env.state.goal_slot, minlength=slots).double()
-    parked_rate = env.state.valid[:, :slots].double().mean(0)
+    parked_rate = env.state.present[:, :slots].double().mean(0)
     expected = 20_000 / slots
     chi2 = ((goal_counts - expected) ** 2 / expected).sum().item()
     assert chi2 < 80  # 37 dof: p < 1e-4 above ~75

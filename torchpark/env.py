@@ -137,7 +137,7 @@ class ParkingEnv(EnvBase):
             speed=torch.zeros(n, device=dev),
             goal_slot=torch.zeros(n, dtype=torch.int64, device=dev),
             goal=torch.zeros(n, 3, device=dev),
-            valid=torch.zeros(n, m, dtype=torch.bool, device=dev),
+            present=torch.zeros(n, m, device=dev),
             steps=torch.zeros(n, dtype=torch.int64, device=dev),
             occupancy=torch.zeros(n, device=dev),
         )

@@ -81,11 +81,17 @@ def boxes_overlap(a: Tensor, b: Tensor) -> Tensor:
 
 
 def frames_overlap(a: BoxFrame, b: BoxFrame) -> Tensor:
-    """:func:`boxes_overlap` on prepared frames (broadcasting). Returns bool [...].
+    """:func:`boxes_overlap` on prepared frames (broadcasting). Returns bool [...]."""
+    return frames_separation(a, b) <= 0.0
 
-    The candidate axes are the two face normals of each box; the boxes are separated when, on
-    some axis, the distance between the centres' projections exceeds the sum of the two
-    projected half extents. Equality (touching) is not a separation.
+
+def frames_separation(a: BoxFrame, b: BoxFrame) -> Tensor:
+    """Largest separating-axis gap between boxes, metres [...]; <= 0 means they overlap or touch.
+
+    The candidate axes are the two face normals of each box. On each, the gap is the distance
+    between the centres' projections minus the two projected half extents; the boxes are apart
+    iff some gap is > 0 (touching: the largest gap is exactly 0). Float max, not boolean logic:
+    it compiles to branch-free vector code.
     """
     dx, dy = b.cx - a.cx, b.cy - a.cy
     # |cosines| between the axes of a (u_a, n_a) and of b (u_b, n_b), shared by all projections.
@@ -93,11 +99,11 @@ def frames_overlap(a: BoxFrame, b: BoxFrame) -> Tensor:
     sin_ab = a.cos * b.sin - a.sin * b.cos  # n_a . u_b  = -u_a . n_b
     c, s = cos_ab.abs(), sin_ab.abs()
     la, wa, lb, wb = a.half_length, a.half_width, b.half_length, b.half_width
-    sep_ua = (dx * a.cos + dy * a.sin).abs() > la + lb * c + wb * s
-    sep_na = (dy * a.cos - dx * a.sin).abs() > wa + lb * s + wb * c
-    sep_ub = (dx * b.cos + dy * b.sin).abs() > la * c + wa * s + lb
-    sep_nb = (dy * b.cos - dx * b.sin).abs() > la * s + wa * c + wb
-    return ~(sep_ua | sep_na | sep_ub | sep_nb)
+    gap_ua = (dx * a.cos + dy * a.sin).abs() - (la + lb * c + wb * s)
+    gap_na = (dy * a.cos - dx * a.sin).abs() - (wa + lb * s + wb * c)
+    gap_ub = (dx * b.cos + dy * b.sin).abs() - (la * c + wa * s + lb)
+    gap_nb = (dy * b.cos - dx * b.sin).abs() - (la * s + wa * c + wb)
+    return torch.maximum(torch.maximum(gap_ua, gap_na), torch.maximum(gap_ub, gap_nb))
 
 
 def ray_box_distance(origins: Tensor, angles: Tensor, boxes: Tensor, max_range: float) -> Tensor:

@@ -32,13 +32,13 @@ def _num_lines(n_rays: int) -> int:
 
 
 def lidar_scan(x: Tensor, y: Tensor, cos_psi: Tensor, sin_psi: Tensor, rotation: Tensor,
-               obstacles: BoxFrame, valid: Tensor, n_rays: int, max_range: float) -> Tensor:
-    """Distances along n_rays rays from (x, y) at psi + 2 pi k / n_rays to the nearest valid box.
+               obstacles: BoxFrame, present: Tensor, n_rays: int, max_range: float) -> Tensor:
+    """Distances along n_rays rays from (x, y) at psi + 2 pi k / n_rays to the nearest present box.
 
     x, y: (N,) ray origin, metres; cos_psi, sin_psi: (N,) heading; rotation: from
-    :func:`line_rotation`; obstacles: frame with fields (M,); valid: (N, M) bool, boxes that
-    exist in each env. Returns (N, n_rays) metres in [0, max_range]: 0 when the origin is inside
-    a box, max_range when nothing is hit within range.
+    :func:`line_rotation`; obstacles: frame with fields (M,); present: (N, M) float32, 1 for
+    the boxes that exist in each env, 0 for the others. Returns (N, n_rays) metres in
+    [0, max_range]: 0 when the origin is inside a box, max_range when nothing is hit in range.
 
     With an even ray count, rays k and k + n_rays / 2 are opposite, so one slab interval
     [t_near, t_far] per line gives both: the forward ray hits at max(t_near, 0) when
@@ -50,9 +50,14 @@ def lidar_scan(x: Tensor, y: Tensor, cos_psi: Tensor, sin_psi: Tensor, rotation:
         x[:, None, None], y[:, None, None],
         directions[:, :lines, None], directions[:, lines:, None], obstacles,
     )  # (N, lines, M)
-    hit = (t_far >= t_near) & valid[:, None, :]
-    forward = torch.where(hit & (t_far >= 0.0), t_near.clamp(min=0.0), max_range).amin(-1)
+    # Absent boxes are pushed beyond range by adding max_range (arithmetic on a float mask:
+    # see ParkingState.present).
+    absent = ((1.0 - present) * max_range)[:, None, :]
+    hit = t_far >= t_near
+    forward = torch.where(hit & (t_far >= 0.0), t_near.clamp(min=0.0), max_range)
+    forward = (forward + absent).amin(-1)
     if lines == n_rays:
         return forward.clamp(max=max_range)
-    backward = torch.where(hit & (t_near <= 0.0), (-t_far).clamp(min=0.0), max_range).amin(-1)
+    backward = torch.where(hit & (t_near <= 0.0), (-t_far).clamp(min=0.0), max_range)
+    backward = (backward + absent).amin(-1)
     return torch.cat((forward, backward), dim=-1).clamp(max=max_range)
