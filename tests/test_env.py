@@ -104,8 +104,8 @@ def test_driving_into_a_wall_collides_and_terminates():
     second = act(env, [2.0, 0.0])  # 0.4 m: through the wall line
     assert second["collision"].item() and second["terminated"].item() and second["done"].item()
     assert not second["truncated"].item()
-    obs = second["observation"][0]
-    cost = 0.35 * obs[0].abs() + 0.35 * obs[1].abs() + 0.1 * 2.0 + 0.2 * abs(
+    obs = second["observation"][0].tolist()
+    cost = 0.35 * abs(obs[0]) + 0.35 * abs(obs[1]) + 0.1 * 2.0 + 0.2 * abs(
         math.remainder(math.atan2(obs[6], obs[5]) - math.atan2(obs[3], obs[2]), 2 * math.pi))
     assert second["reward"].item() == pytest.approx(1 - cost ** (1 / 3) - 200, abs=1e-4)
 

@@ -127,7 +127,7 @@ def test_ray_distance_agrees_with_shapely():
 def test_ray_distance_is_max_range_beyond_range_and_zero_inside():
     box = torch.tensor([10.0, 0.0, 0.0, 1.0, 1.0])
     origin = torch.tensor([0.0, 0.0])
-    assert ray_box_distance(origin, torch.tensor(0.0), box, 20.0) == pytest.approx(9.0)
+    assert ray_box_distance(origin, torch.tensor(0.0), box, 20.0).item() == pytest.approx(9.0)
     assert ray_box_distance(origin, torch.tensor(0.0), box, 5.0) == 5.0
     assert ray_box_distance(origin, torch.tensor(math.pi), box, 20.0) == 20.0
     assert ray_box_distance(torch.tensor([10.5, 0.2]), torch.tensor(1.0), box, 20.0) == 0.0

@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from torchpark.config import LotConfig, VehicleConfig
-from torchpark.geometry import BoxFrame, box_frame, frames_overlap, wrap_angle
+from torchpark.geometry import BoxFrame, box_frame, frames_separation, wrap_angle
 from torchpark.vehicle import vehicle_frame
 
 SECTIONS = ("upper", "left", "middle", "right")
@@ -173,7 +173,7 @@ def start_pose_valid(poses: Tensor, blocked: BoxFrame, vehicle: VehicleConfig) -
     success test, which needs the vehicle box inside the goal slot.
     """
     ego = vehicle_frame(poses, vehicle)
-    return ~frames_overlap(BoxFrame(*(t[..., None] for t in ego)), blocked).any(-1)
+    return frames_separation(BoxFrame(*(t[..., None] for t in ego)), blocked).amin(-1) > 0.0
 
 
 def _rejection_sample_pool(layout: LotLayout, vehicle: VehicleConfig, size: int,

@@ -20,7 +20,6 @@ from torchpark.reward import is_success, parking_cost, parking_reward
 from torchpark.vehicle import bicycle_step, clamp_action, vehicle_frame
 
 _ABSENT_GAP = 1e4  # metres
-OBS_NAMES = ("dx", "dy", "cos_psi", "sin_psi", "v", "cos_alpha", "sin_alpha")
 
 
 class World(NamedTuple):
