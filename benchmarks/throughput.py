@@ -44,7 +44,9 @@ def env_steps_per_second(num_envs: int, device: str, compiled: bool, occupancy: 
 
     for _ in range(3):  # compile and warm up
         step()
-    measurement = Timer("step()", globals={"step": step}).blocked_autorange(min_run_time=min_time)
+    # Timer runs with one thread unless told otherwise.
+    timer = Timer("step()", globals={"step": step}, num_threads=torch.get_num_threads())
+    measurement = timer.blocked_autorange(min_run_time=min_time)
     return num_envs / measurement.median
 
 
