@@ -28,7 +28,7 @@ from torchpark import ParkingEnv
 
 
 def env_steps_per_second(num_envs: int, device: str, compiled: bool, occupancy: float,
-                         min_time: float) -> float:
+                         min_time: float, repeats: int) -> list[float]:
     env = ParkingEnv(num_envs, seed=0, device=device, compile_step=compiled)
     env.occupancy = occupancy
     env.reset()
@@ -46,24 +46,27 @@ def env_steps_per_second(num_envs: int, device: str, compiled: bool, occupancy: 
         step()
     # Timer runs with one thread unless told otherwise.
     timer = Timer("step()", globals={"step": step}, num_threads=torch.get_num_threads())
-    measurement = timer.blocked_autorange(min_run_time=min_time)
-    return num_envs / measurement.median
+    return [num_envs / timer.blocked_autorange(min_run_time=min_time).median
+            for _ in range(repeats)]
 
 
-def reference_steps_per_second(occupancy: float, seconds: float) -> float:
+def reference_steps_per_second(occupancy: float, seconds: float, repeats: int) -> list[float]:
     env = ParkingEnv(1, seed=0)
     env.occupancy = occupancy
     env.reset()
     rng = np.random.default_rng(0)
     ref = ReferenceParkingEnv.from_batched(env, 0)
     actions = rng.uniform([-5, -0.785], [5, 0.785], (1000, 2))
-    steps, start = 0, time.perf_counter()
-    while time.perf_counter() - start < seconds:
-        start_pose = (ref.x, ref.y, ref.psi)
-        ref.step(actions[steps % 1000])
-        ref.x, ref.y, ref.psi = start_pose  # same state each step, like the batched timing
-        steps += 1
-    return steps / (time.perf_counter() - start)
+    start_pose = (ref.x, ref.y, ref.psi)
+    rates = []
+    for _ in range(repeats):
+        steps, start = 0, time.perf_counter()
+        while time.perf_counter() - start < seconds:
+            ref.step(actions[steps % 1000])
+            ref.x, ref.y, ref.psi = start_pose  # same state each step, like the batched timing
+            steps += 1
+        rates.append(steps / (time.perf_counter() - start))
+    return rates
 
 
 def main() -> None:
@@ -72,6 +75,9 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 64, 1024, 4096, 16384])
     parser.add_argument("--occupancy", type=float, default=0.5)
     parser.add_argument("--min-time", type=float, default=1.0, help="seconds per measurement")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="measurements per figure; the best is reported (the machine's "
+                             "speed drifts, and noise only ever slows a run down)")
     parser.add_argument("--no-eager", action="store_true", help="skip the eager step")
     args = parser.parse_args()
 
@@ -79,17 +85,25 @@ def main() -> None:
           f"{torch.get_num_threads()} threads, device {args.device}"
           + (f" ({torch.cuda.get_device_name()})" if args.device.startswith("cuda") else ""))
     print(f"occupancy {args.occupancy}, 16 rays, {ParkingEnv(1).layout.num_slots + 4} obstacles")
-    reference = reference_steps_per_second(args.occupancy, 3 * args.min_time)
-    print(f"reference (numpy, one env): {reference:,.0f} steps/s\n")
+    refs = reference_steps_per_second(args.occupancy, 2 * args.min_time, args.repeats)
+    reference = max(refs)
+    print(f"reference (numpy, one env): {reference:,.0f} steps/s (best of {spread(refs)})")
+    print(f"best of {args.repeats} measurements each; the range follows in brackets\n")
     print("| N | eager env-steps/s | compiled env-steps/s | compiled / eager "
           "| compiled / reference |")
     print("|---:|---:|---:|---:|---:|")
     for n in args.sizes:
-        eager = (float("nan") if args.no_eager else
-                 env_steps_per_second(n, args.device, False, args.occupancy, args.min_time))
-        compiled = env_steps_per_second(n, args.device, True, args.occupancy, args.min_time)
-        print(f"| {n:,} | {eager:,.0f} | {compiled:,.0f} | {compiled / eager:.1f}x "
-              f"| {compiled / reference:,.0f}x |", flush=True)
+        eager = ([float("nan")] if args.no_eager else env_steps_per_second(
+            n, args.device, False, args.occupancy, args.min_time, args.repeats))
+        compiled = env_steps_per_second(n, args.device, True, args.occupancy, args.min_time,
+                                        args.repeats)
+        print(f"| {n:,} | {max(eager):,.0f} [{spread(eager)}] | {max(compiled):,.0f} "
+              f"[{spread(compiled)}] | {max(compiled) / max(eager):.1f}x "
+              f"| {max(compiled) / reference:,.0f}x |", flush=True)
+
+
+def spread(rates: list[float]) -> str:
+    return f"{min(rates):,.0f}-{max(rates):,.0f}"
 
 
 if __name__ == "__main__":

@@ -278,3 +278,23 @@ def test_compiled_step_is_one_graph_and_matches_eager():
     assert torch.equal(eager["collision"], compiled["collision"])
     assert torch.allclose(eager["observation"], compiled["observation"], atol=1e-4)
     assert torch.allclose(eager["reward"], compiled["reward"], atol=1e-3)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_matches_cpu():
+    """Same lots (drawn on CPU, copied over), same actions: CPU and CUDA steps agree."""
+    cpu = ParkingEnv(256, seed=0)
+    cpu.occupancy = 0.6
+    td = cpu.reset()
+    gpu = ParkingEnv(256, seed=0, device="cuda", validate_actions=False)
+    gpu.reset()
+    gpu._state = type(cpu.state)(*(t.cuda() for t in cpu.state))
+    for a in random_actions(256, 50, 12):
+        out_cpu = cpu.step(td.set("action", a))["next"]
+        out_gpu = gpu.step(TensorDict({"action": a.cuda()}, batch_size=[256], device="cuda"))
+        out_gpu = out_gpu["next"].cpu()
+        assert torch.equal(out_cpu["collision"], out_gpu["collision"])
+        assert torch.allclose(out_cpu["observation"], out_gpu["observation"], atol=1e-4)
+        assert torch.allclose(out_cpu["reward"], out_gpu["reward"], atol=1e-3)
+        td = out_cpu
+        gpu._state = type(cpu.state)(*(t.cuda() for t in cpu.state))  # no drift between steps
