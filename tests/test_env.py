@@ -172,8 +172,11 @@ def test_out_of_range_actions_are_clamped():
 def test_non_finite_action_raises(bad):
     env = ParkingEnv(2, seed=0)
     env.reset()
+    before = [t.clone() for t in env.state]
     with pytest.raises(ValueError, match="action must be finite"):
         act(env, [[1.0, 0.0], [bad, 0.0]])
+    for old, new in zip(before, env.state, strict=True):  # the bad step was not kept
+        assert torch.equal(old, new)
 
 
 @pytest.mark.parametrize("shape", [(2,), (4, 2), (3, 3), (3, 2, 1)])

@@ -33,8 +33,9 @@ class ParkingEnv(EnvBase):
             ``torch.compile(fullgraph=True)``. Worth it from a few hundred envs on (several times
             faster on CPU); the first step then takes tens of seconds to compile.
         compile_kwargs: passed to ``torch.compile``.
-        validate_actions: raise on non-finite actions. It reads one bool from the device per
-            step: free on CPU, a synchronisation on CUDA; turn it off for GPU throughput.
+        validate_actions: raise on non-finite actions (the state is then left as it was). The
+            test runs inside the step; reading its bool is free on CPU, a synchronisation on
+            CUDA: turn it off for GPU throughput.
 
     Actions (N, 2) = (v m/s, delta rad) are clamped to [-max_speed, max_speed] and
     [-max_steer, max_steer] (documented behaviour); a non-finite action raises ValueError.
@@ -178,19 +179,16 @@ class ParkingEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action")
-        self._check_action(action)
-        self._state, out = self._step_fn(self._state, action)
-        self._observation = out.observation
-        return TensorDict(
-            {**out._asdict(), "occupancy": self._state.occupancy[:, None]},
-            batch_size=self.batch_size, device=self.device,
-        )
-
-    def _check_action(self, action: torch.Tensor) -> None:
         if action.shape != (self.num_envs, 2):
             raise ValueError(
                 f"action must have shape ({self.num_envs}, 2) = (num_envs, [v, delta]), "
                 f"got {tuple(action.shape)}"
             )
-        if self.validate_actions and not bool(torch.isfinite(action).all()):
+        state, out, finite = self._step_fn(self._state, action)
+        if self.validate_actions and not bool(finite):  # before the state is kept
             raise ValueError("action must be finite (no NaN or inf); got a non-finite value")
+        self._state, self._observation = state, out.observation
+        return TensorDict(
+            {**out._asdict(), "occupancy": self._state.occupancy[:, None]},
+            batch_size=self.batch_size, device=self.device,
+        )

@@ -88,8 +88,12 @@ def observe(state: ParkingState, world: World, cfg: ParkingConfig) -> tuple[Tens
 
 
 def parking_step(state: ParkingState, action: Tensor, world: World, cfg: ParkingConfig
-                 ) -> tuple[ParkingState, StepResult]:
-    """Advance every env by one step of (v, delta) actions (N, 2), clamped to the limits."""
+                 ) -> tuple[ParkingState, StepResult, Tensor]:
+    """Advance every env by one step of (v, delta) actions (N, 2), clamped to the limits.
+
+    Also returns whether every action was finite, () bool: computed inside the (compiled)
+    step, where it costs nothing, so the caller can reject the step before keeping its state.
+    """
     v, delta = clamp_action(action, cfg.vehicle)
     state = state._replace(
         pose=bicycle_step(state.pose, v, delta, cfg.vehicle), speed=v, steps=state.steps + 1
@@ -100,7 +104,7 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
     terminated = collision | success
     truncated = (state.steps >= cfg.max_steps) & ~terminated
     column = (reward, terminated, truncated, terminated | truncated, success, collision)
-    return state, StepResult(observation, *(t[:, None] for t in column))
+    return state, StepResult(observation, *(t[:, None] for t in column)), action.isfinite().all()
 
 
 def reset_rows(state: ParkingState, observation: Tensor, mask: Tensor, goal_slot: Tensor,

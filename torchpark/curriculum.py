@@ -1,0 +1,85 @@
+"""The paper's fixed-schedule curriculum as a TorchRL transform: occupancy rises every
+``frames_per_level`` frames (env steps summed over the batch) and stays at the last level."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.envs.transforms import Transform
+
+from torchpark.config import check_occupancy
+
+PAPER_LEVELS = (0.0, 0.2, 0.4, 0.6, 0.8, 0.9)
+
+
+class OccupancyCurriculum(Transform):
+    """Sets the base ``ParkingEnv``'s occupancy from the number of frames stepped so far.
+
+    Level ``k`` (phase ``k + 1``) holds from ``k * frames_per_level`` frames on; the new level
+    applies to lots drawn at later resets. The frame count is a buffer, so ``env.state_dict()``
+    and ``collector.state_dict()`` carry it and ``load_state_dict`` resumes the schedule. The
+    count is also mirrored in a Python int, so no step reads a device tensor (no host sync).
+
+    Build a fresh transform (or none) for an evaluation env: ``clone()`` shares the buffer.
+    """
+
+    def __init__(self, levels: Sequence[float] = PAPER_LEVELS,
+                 frames_per_level: int = 2_000_000) -> None:
+        super().__init__()
+        levels = tuple(levels)
+        if not levels:
+            raise ValueError("levels must hold at least one occupancy, got an empty sequence")
+        self.levels = tuple(check_occupancy(v, f"levels[{i}]") for i, v in enumerate(levels))
+        if isinstance(frames_per_level, bool) or not isinstance(frames_per_level, int) \
+                or frames_per_level < 1:
+            raise ValueError(f"frames_per_level must be an int >= 1, got {frames_per_level!r}")
+        self.frames_per_level = frames_per_level
+        self.register_buffer("frames", torch.zeros((), dtype=torch.int64))
+        self._frames = 0
+
+    @property
+    def frames_seen(self) -> int:
+        """Frames stepped through this transform (env steps summed over the batch)."""
+        return self._frames
+
+    @property
+    def level(self) -> int:
+        """Index into ``levels`` of the current level."""
+        return min(self._frames // self.frames_per_level, len(self.levels) - 1)
+
+    @property
+    def phase(self) -> int:
+        """The paper's phase number, 1-based."""
+        return self.level + 1
+
+    @property
+    def occupancy(self) -> float:
+        return self.levels[self.level]
+
+    def _push(self) -> None:
+        container = self.container
+        if container is not None:
+            container.base_env.occupancy = self.occupancy
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
+              ) -> TensorDictBase:
+        self._frames += next_tensordict.numel()
+        self.frames.fill_(self._frames)  # an async fill from a host int: no sync
+        self._push()
+        return next_tensordict
+
+    def _reset_env_preprocess(self, tensordict: TensorDictBase) -> TensorDictBase:
+        self._push()  # before the base env draws its new lots
+        return super()._reset_env_preprocess(tensordict)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        self._frames = int(self.frames)
+        if "_container" in self.__dict__:
+            self._push()
+
+    def extra_repr(self) -> str:
+        return (f"levels={self.levels}, frames_per_level={self.frames_per_level}, "
+                f"frames_seen={self._frames}, phase={self.phase}")
