@@ -7,11 +7,13 @@ from torchpark.config import (
     RewardConfig,
     VehicleConfig,
 )
+from torchpark.curriculum import OccupancyCurriculum
 from torchpark.env import ParkingEnv
 
 __all__ = [
     "LidarConfig",
     "LotConfig",
+    "OccupancyCurriculum",
     "ParkingConfig",
     "ParkingEnv",
     "RewardConfig",
