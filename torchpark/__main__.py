@@ -1,6 +1,6 @@
 """Roll out random policies in a batched ParkingEnv and report what happened.
 
-    python -m torchpark --num-envs 1024 --steps 200 --occupancy 0.5 [--compile] [--device cuda]
+    python -m torchpark --num-envs 1024 --steps 200 --occupancy 0.5 [--eager] [--device cuda]
 """
 
 from __future__ import annotations
@@ -19,11 +19,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--occupancy", type=float, default=0.5)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--compile", action="store_true", help="compile_step=True")
+    parser.add_argument("--eager", action="store_true",
+                        help="compile_step=False (by default the step is compiled)")
     args = parser.parse_args(argv)
 
-    env = ParkingEnv(args.num_envs, device=args.device, seed=args.seed, compile_step=args.compile)
+    env = ParkingEnv(args.num_envs, device=args.device, seed=args.seed,
+                     compile_step=not args.eager)
     env.occupancy = args.occupancy
+    start = time.perf_counter()
+    env.rollout(3, break_when_any_done=False)  # warm-up: compiles step and reset when asked
+    if not args.eager:
+        print(f"compiled step and reset in {time.perf_counter() - start:.1f} s")
     start = time.perf_counter()
     rollout = env.rollout(args.steps, break_when_any_done=False)  # random actions, auto-reset
     seconds = time.perf_counter() - start
