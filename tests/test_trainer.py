@@ -1,0 +1,76 @@
+"""The PPO trainer: the smoke preset end to end, TensorBoard tags, checkpoints, resume, errors."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from trainers.config import load_config
+from trainers.ppo import main, train
+
+TAGS = {
+    "episode/reward", "episode/length", "episode/success_rate", "episode/collision_rate",
+    "episode/timeout_rate", "curriculum/occupancy", "curriculum/phase", "loss/objective",
+    "loss/critic", "time/fps", "time/collect_fps", "time/train_fps",
+}
+
+
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory):
+    log_dir = tmp_path_factory.mktemp("runs")
+    cfg = load_config("smoke", [f"logger.log_dir={log_dir}"])
+    return cfg, train(cfg)
+
+
+def test_smoke_preset_trains_and_logs(smoke_run):
+    cfg, final = smoke_run
+    run_dir = final.parent
+    events = EventAccumulator(str(run_dir))
+    events.Reload()
+    assert TAGS <= set(events.Tags()["scalars"])
+    phases = [e.value for e in events.Scalars("curriculum/phase")]
+    assert phases == sorted(phases) and phases[-1] > 1  # 4 x 1024 frames, 1024 per level
+    ckpt = torch.load(final, weights_only=False)
+    assert ckpt["frames"] == cfg.collector.total_frames
+    assert ckpt["config"] == dataclasses.asdict(cfg)
+    assert {"actor", "critic", "optim", "env"} <= set(ckpt)
+    assert (run_dir / "checkpoint_2048.pt").exists()
+
+
+def test_resume_keeps_frames_and_curriculum(smoke_run, tmp_path):
+    _, final = smoke_run
+    frames = [int(v) for k, v in torch.load(final, weights_only=False)["env"].items()
+              if k.endswith("frames")]
+    assert frames == [4096]
+    main(["--preset", "smoke", "--resume", str(final), f"logger.log_dir={tmp_path}",
+          "collector.total_frames=6144"])
+    resumed = torch.load(tmp_path / "smoke" / "checkpoint_final.pt", weights_only=False)
+    assert resumed["frames"] == 6144
+    assert [int(v) for k, v in resumed["env"].items() if k.endswith("frames")] == [6144]
+
+
+def test_unknown_preset_or_field_is_an_error():
+    with pytest.raises(ValueError, match="preset must be one of"):
+        load_config("turbo")
+    with pytest.raises(Exception, match="Key 'nope' not in 'EnvConfig'"):
+        load_config("smoke", ["env.nope=1"])
+    with pytest.raises(ValueError, match=r"frames_per_batch must be a multiple of env\.num_envs"):
+        load_config("smoke", ["env.num_envs=7"])
+
+
+def test_checkpoint_from_another_config_is_refused(smoke_run, tmp_path):
+    _, final = smoke_run
+    other = load_config("smoke", ["model.hidden=[32,32]", f"logger.log_dir={tmp_path}"])
+    with pytest.raises(ValueError, match="trained with another model config"):
+        train(other, resume=str(final))
+
+
+def test_unwritable_log_dir_is_an_error_before_training(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    cfg = load_config("smoke", [f"logger.log_dir={blocker / 'runs'}"])
+    with pytest.raises(ValueError, match=r"logger\.log_dir .* cannot be created"):
+        train(cfg)

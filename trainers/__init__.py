@@ -1,0 +1,1 @@
+"""PPO training for torchpark through TorchRL's Collector, GAE and ClipPPOLoss."""

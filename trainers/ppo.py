@@ -1,0 +1,176 @@
+"""PPO on torchpark with the occupancy curriculum, read top to bottom like torchrl's recipes.
+
+    python -m trainers.ppo --preset fast [--resume CHECKPOINT] [key=value ...]
+
+Overrides use the config's dot names, e.g. ``collector.total_frames=2000000 env.num_envs=256
+logger.log_dir=/tmp/runs``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import time
+from pathlib import Path
+
+import torch
+from tensordict import TensorDict
+from torchrl.collectors import Collector
+from torchrl.envs import Compose, InitTracker, RewardSum, StepCounter, TransformedEnv, VecNormV2
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+from torchrl.record.loggers import TensorboardLogger
+from tqdm import tqdm
+
+from torchpark import OccupancyCurriculum, ParkingConfig, ParkingEnv
+from trainers.config import TrainConfig, load_config
+from trainers.models import make_ppo_models
+
+# Config sections a checkpoint must share with the run that resumes it.
+_MODEL_SECTIONS = ("env", "model", "curriculum")
+
+
+def make_env(cfg: TrainConfig) -> TransformedEnv:
+    """The training env: ParkingEnv, episode statistics, the curriculum, observation norm."""
+    base = ParkingEnv(cfg.env.num_envs, device=cfg.env.device, seed=cfg.seed,
+                      config=ParkingConfig(max_steps=cfg.env.max_steps),
+                      compile_step=cfg.env.compile_step)
+    return TransformedEnv(base, Compose(
+        InitTracker(), StepCounter(), RewardSum(),
+        OccupancyCurriculum(cfg.curriculum.levels, cfg.curriculum.frames_per_level),
+        VecNormV2(in_keys=["observation"]),
+    ))
+
+
+def episode_stats(batch: TensorDict) -> dict[str, float]:
+    """Means over the episodes that ended in this batch (empty dict when none did)."""
+    nxt = batch["next"]
+    done = nxt["done"][..., 0]
+    if not bool(done.any()):
+        return {}
+    return {
+        "episode/reward": nxt["episode_reward"][done].mean().item(),
+        "episode/length": nxt["step_count"][done].float().mean().item(),
+        "episode/success_rate": nxt["success"][done].float().mean().item(),
+        "episode/collision_rate": nxt["collision"][done].float().mean().item(),
+        "episode/timeout_rate": nxt["truncated"][done].float().mean().item(),
+    }
+
+
+def check_log_dir(path: Path) -> None:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ValueError(f"logger.log_dir {str(path)!r} cannot be created: {err}") from err
+    if not os.access(path, os.W_OK):
+        raise ValueError(f"logger.log_dir {str(path)!r} is not writable")
+
+
+def train(cfg: TrainConfig, resume: str | None = None) -> Path:
+    """Run PPO; returns the path of the final checkpoint."""
+    run_dir = Path(cfg.logger.log_dir) / cfg.logger.exp_name
+    check_log_dir(run_dir)
+    checkpoint = torch.load(resume, weights_only=False) if resume else None
+    if checkpoint is not None:
+        saved = checkpoint["config"]
+        for section in _MODEL_SECTIONS:
+            if saved[section] != dataclasses.asdict(getattr(cfg, section)):
+                raise ValueError(f"checkpoint {resume!r} was trained with another {section} "
+                                 f"config: {saved[section]}")
+    torch.manual_seed(cfg.seed)
+
+    env = make_env(cfg)
+    actor, critic = make_ppo_models(env.base_env.obs_dim, env.action_spec, cfg.model)
+    loss_module = ClipPPOLoss(
+        actor, critic, clip_epsilon=cfg.loss.clip_epsilon,
+        entropy_bonus=cfg.loss.entropy_coeff > 0, entropy_coeff=cfg.loss.entropy_coeff,
+        critic_coeff=cfg.loss.critic_coeff, loss_critic_type="l2", normalize_advantage=True,
+    )
+    advantage = GAE(gamma=cfg.loss.gamma, lmbda=cfg.loss.gae_lambda, value_network=critic,
+                    average_gae=False)
+    optim = torch.optim.Adam(loss_module.parameters(), lr=cfg.optim.lr)
+    frames = 0
+    if checkpoint is not None:
+        actor.load_state_dict(checkpoint["actor"])
+        critic.load_state_dict(checkpoint["critic"])
+        optim.load_state_dict(checkpoint["optim"])
+        env.load_state_dict(checkpoint["env"])
+        frames = checkpoint["frames"]
+    remaining = cfg.collector.total_frames - frames
+    if remaining < cfg.collector.frames_per_batch:
+        raise ValueError(f"collector.total_frames={cfg.collector.total_frames} leaves less than "
+                         f"one batch after the checkpoint's {frames} frames")
+
+    collector = Collector(env, actor, frames_per_batch=cfg.collector.frames_per_batch,
+                          total_frames=remaining, device=cfg.env.device)
+    logger = TensorboardLogger(exp_name=cfg.logger.exp_name, log_dir=cfg.logger.log_dir)
+    curriculum = env.transform[3]
+
+    def save(name: str) -> Path:
+        path = run_dir / name
+        torch.save({"config": dataclasses.asdict(cfg), "frames": frames,
+                    "actor": actor.state_dict(), "critic": critic.state_dict(),
+                    "optim": optim.state_dict(), "env": env.state_dict()}, path)
+        return path
+
+    next_checkpoint = (frames // cfg.logger.checkpoint_every + 1) * cfg.logger.checkpoint_every
+    bar = tqdm(total=cfg.collector.total_frames, initial=frames, unit="frame", smoothing=0.1)
+    collect_start = time.perf_counter()
+    for batch in collector:
+        collect_time = time.perf_counter() - collect_start
+        frames += batch.numel()
+        train_start = time.perf_counter()
+        with torch.no_grad():
+            advantage(batch)
+        flat = batch.reshape(-1)
+        for _ in range(cfg.loss.ppo_epochs):
+            for index in torch.randperm(flat.shape[0]).split(cfg.loss.mini_batch_size):
+                losses = loss_module(flat[index])
+                total = losses["loss_objective"] + losses["loss_critic"]
+                if "loss_entropy" in losses.keys():
+                    total = total + losses["loss_entropy"]
+                total.backward()
+                torch.nn.utils.clip_grad_norm_(loss_module.parameters(), cfg.loss.max_grad_norm)
+                optim.step()
+                optim.zero_grad()
+        collector.update_policy_weights_()
+        train_time = time.perf_counter() - train_start
+
+        scalars = {
+            **episode_stats(batch),
+            "curriculum/occupancy": curriculum.occupancy, "curriculum/phase": curriculum.phase,
+            "loss/objective": losses["loss_objective"].item(),
+            "loss/critic": losses["loss_critic"].item(),
+            "loss/kl_approx": losses["kl_approx"].item(),
+            "loss/clip_fraction": losses["clip_fraction"].item(),
+            "time/collect_fps": batch.numel() / collect_time,
+            "time/train_fps": batch.numel() / train_time,
+            "time/fps": batch.numel() / (collect_time + train_time),
+        }
+        for key, value in scalars.items():
+            logger.log_scalar(key, value, step=frames)
+        bar.update(batch.numel())
+        bar.set_postfix(phase=curriculum.phase,
+                        success=f"{scalars.get('episode/success_rate', float('nan')):.2f}")
+        if frames >= next_checkpoint:
+            save(f"checkpoint_{frames}.pt")
+            next_checkpoint += cfg.logger.checkpoint_every
+        collect_start = time.perf_counter()
+    bar.close()
+    collector.shutdown()
+    return save("checkpoint_final.pt")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m trainers.ppo", description=__doc__)
+    parser.add_argument("--preset", default="fast", help="paper, fast or smoke")
+    parser.add_argument("--resume", default=None, help="checkpoint to continue from")
+    parser.add_argument("overrides", nargs="*", help="config fields as key=value")
+    args = parser.parse_intermixed_args(argv)
+    path = train(load_config(args.preset, args.overrides), resume=args.resume)
+    print(f"final checkpoint: {path}")
+
+
+if __name__ == "__main__":
+    main()
