@@ -11,6 +11,8 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
 from trainers.config import ModelConfig
 
+NORMALISED = "observation_norm"  # the normalised observation the networks read
+
 
 class StateIndependentScale(nn.Module):
     """loc -> (loc, exp(log_std)) with one learned log-std per action dimension."""
@@ -25,7 +27,7 @@ class StateIndependentScale(nn.Module):
 
 def make_ppo_models(obs_dim: int, action_spec: Bounded, cfg: ModelConfig
                     ) -> tuple[ProbabilisticActor, ValueOperator]:
-    """Actor (observation -> action, sample_log_prob) and critic (observation -> state_value)."""
+    """Actor (NORMALISED -> action, sample_log_prob) and critic (NORMALISED -> state_value)."""
     action_dim = action_spec.shape[-1]
     low = action_spec.space.low.reshape(-1, action_dim)[0]
     high = action_spec.space.high.reshape(-1, action_dim)[0]
@@ -35,13 +37,13 @@ def make_ppo_models(obs_dim: int, action_spec: Bounded, cfg: ModelConfig
         StateIndependentScale(action_dim, cfg.init_log_std),
     )
     actor = ProbabilisticActor(
-        TensorDictModule(policy, in_keys=["observation"], out_keys=["loc", "scale"]),
+        TensorDictModule(policy, in_keys=[NORMALISED], out_keys=["loc", "scale"]),
         in_keys=["loc", "scale"], spec=action_spec, distribution_class=TanhNormal,
         distribution_kwargs={"low": low, "high": high}, return_log_prob=True,
     )
     critic = ValueOperator(
         MLP(in_features=obs_dim, out_features=1, num_cells=list(cfg.hidden),
             activation_class=nn.Tanh),
-        in_keys=["observation"],
+        in_keys=[NORMALISED],
     )
     return actor, critic

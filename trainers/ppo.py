@@ -25,21 +25,24 @@ from tqdm import tqdm
 
 from torchpark import OccupancyCurriculum, ParkingConfig, ParkingEnv
 from trainers.config import TrainConfig, load_config
-from trainers.models import make_ppo_models
+from trainers.models import NORMALISED, make_ppo_models
 
 # Config sections a checkpoint must share with the run that resumes it.
 _MODEL_SECTIONS = ("env", "model", "curriculum")
 
 
 def make_env(cfg: TrainConfig) -> TransformedEnv:
-    """The training env: ParkingEnv, episode statistics, the curriculum, observation norm."""
+    """The training env: ParkingEnv, episode statistics, the curriculum, observation norm
+    (written to ``NORMALISED``)."""
     base = ParkingEnv(cfg.env.num_envs, device=cfg.env.device, seed=cfg.seed,
                       config=ParkingConfig(max_steps=cfg.env.max_steps),
                       compile_step=cfg.env.compile_step)
     return TransformedEnv(base, Compose(
         InitTracker(), StepCounter(), RewardSum(),
         OccupancyCurriculum(cfg.curriculum.levels, cfg.curriculum.frames_per_level),
-        VecNormV2(in_keys=["observation"]),
+        # Normalised into its own key: the networks read it, while the raw observation stays
+        # in the data for evaluation and analysis (final position and heading errors).
+        VecNormV2(in_keys=["observation"], out_keys=[NORMALISED]),
     ))
 
 
