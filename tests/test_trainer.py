@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 
 import pytest
@@ -9,6 +10,8 @@ import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from trainers.config import load_config
+from trainers.evaluate import COLUMNS
+from trainers.evaluate import main as evaluate_main
 from trainers.ppo import main, train
 
 TAGS = {
@@ -74,3 +77,19 @@ def test_unwritable_log_dir_is_an_error_before_training(tmp_path):
     cfg = load_config("smoke", [f"logger.log_dir={blocker / 'runs'}"])
     with pytest.raises(ValueError, match=r"logger\.log_dir .* cannot be created"):
         train(cfg)
+
+
+def test_evaluation_table_has_the_stated_columns(smoke_run, tmp_path):
+    _, final = smoke_run
+    evaluate_main([str(final), "--episodes", "6", "--out", str(tmp_path)])
+    with open(tmp_path / "evaluation.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert tuple(rows[0]) == COLUMNS
+    assert [float(r["occupancy"]) for r in rows] == [0.0, 0.2, 0.4, 0.6, 0.8, 0.9]
+    assert [float(r["paper_success"]) for r in rows] == [0.20, 0.52, 0.65, 0.64, 0.59, 0.62]
+    for r in rows:  # every lot's first episode ended, in exactly one way
+        total = float(r["success"]) + float(r["collision"]) + float(r["timeout"])
+        assert total == pytest.approx(1.0)
+        assert 1 <= float(r["mean_length"]) <= 50 and float(r["pos_err_median_m"]) >= 0
+    markdown = (tmp_path / "evaluation.md").read_text()
+    assert markdown.startswith("| occupancy | episodes | success |") and markdown.count("\n") == 8

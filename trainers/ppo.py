@@ -42,7 +42,8 @@ def make_env(cfg: TrainConfig) -> TransformedEnv:
         OccupancyCurriculum(cfg.curriculum.levels, cfg.curriculum.frames_per_level),
         # Normalised into its own key: the networks read it, while the raw observation stays
         # in the data for evaluation and analysis (final position and heading errors).
-        VecNormV2(in_keys=["observation"], out_keys=[NORMALISED]),
+        # reduce_batch_dims: one set of statistics over all envs (the default keeps one per env).
+        VecNormV2(in_keys=["observation"], out_keys=[NORMALISED], reduce_batch_dims=True),
     ))
 
 
@@ -114,7 +115,8 @@ def train(cfg: TrainConfig, resume: str | None = None) -> Path:
         path = run_dir / name
         torch.save({"config": dataclasses.asdict(cfg), "frames": frames,
                     "actor": actor.state_dict(), "critic": critic.state_dict(),
-                    "optim": optim.state_dict(), "env": env.state_dict()}, path)
+                    "optim": optim.state_dict(), "env": env.state_dict(),
+                    "obs_norm": env.transform[4].state_dict()}, path)
         return path
 
     next_checkpoint = (frames // cfg.logger.checkpoint_every + 1) * cfg.logger.checkpoint_every
