@@ -77,12 +77,7 @@ def boxes_overlap(a: Tensor, b: Tensor) -> Tensor:
     a, b: [..., 5], broadcast against each other. Returns bool [...]: True when the closed boxes
     share at least one point.
     """
-    return frames_overlap(box_frame(a), box_frame(b))
-
-
-def frames_overlap(a: BoxFrame, b: BoxFrame) -> Tensor:
-    """:func:`boxes_overlap` on prepared frames (broadcasting). Returns bool [...]."""
-    return frames_separation(a, b) <= 0.0
+    return frames_separation(box_frame(a), box_frame(b)) <= 0.0
 
 
 def frames_separation(a: BoxFrame, b: BoxFrame) -> Tensor:
@@ -115,21 +110,8 @@ def ray_box_distance(origins: Tensor, angles: Tensor, boxes: Tensor, max_range: 
     box, and ``max_range`` when the ray misses or the hit lies farther than ``max_range``. Never
     NaN or inf, also for rays parallel to an edge.
     """
-    return ray_frame_distance(
-        origins[..., 0], origins[..., 1], torch.cos(angles), torch.sin(angles),
-        box_frame(boxes), max_range,
-    )
-
-
-def ray_frame_distance(
-    x: Tensor, y: Tensor, cos: Tensor, sin: Tensor, frame: BoxFrame, max_range: float
-) -> Tensor:
-    """:func:`ray_box_distance` on components: origins (x, y) and unit directions (cos, sin).
-
-    All arguments broadcast; a caller with many rays per box (LIDAR) computes each ray's
-    direction once and each box's frame once, instead of once per ray-box pair.
-    """
-    t_near, t_far = slab_interval(x, y, cos, sin, frame)
+    t_near, t_far = slab_interval(origins[..., 0], origins[..., 1], torch.cos(angles),
+                                  torch.sin(angles), box_frame(boxes))
     hit = (t_far >= t_near) & (t_far >= 0.0)
     return torch.where(hit, t_near.clamp(min=0.0), max_range).clamp(max=max_range)
 
