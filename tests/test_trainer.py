@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 
+import imageio.v3 as iio
 import pytest
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -93,3 +94,6 @@ def test_evaluation_table_has_the_stated_columns(smoke_run, tmp_path):
         assert 1 <= float(r["mean_length"]) <= 50 and float(r["pos_err_median_m"]) >= 0
     markdown = (tmp_path / "evaluation.md").read_text()
     assert markdown.startswith("| occupancy | episodes | success |") and markdown.count("\n") == 8
+    videos = sorted(p.name for p in tmp_path.glob("rollout_occ*.mp4"))
+    assert videos == [f"rollout_occ{p}.mp4" for p in sorted(["0", "20", "40", "60", "80", "90"])]
+    assert iio.improps(tmp_path / "rollout_occ90.mp4").shape[1:] == (384, 480, 3)

@@ -9,13 +9,21 @@ from torchpark.config import (
 )
 from torchpark.curriculum import OccupancyCurriculum
 from torchpark.env import ParkingEnv
+from torchpark.features import GoalFrameFeatures
+from torchpark.gym_env import ENV_ID, ParkingGymEnv, ParkingVectorEnv, register
+
+register()  # gymnasium.make("torchpark/Parking-v0")
 
 __all__ = [
+    "ENV_ID",
+    "GoalFrameFeatures",
     "LidarConfig",
     "LotConfig",
     "OccupancyCurriculum",
     "ParkingConfig",
     "ParkingEnv",
+    "ParkingGymEnv",
+    "ParkingVectorEnv",
     "RewardConfig",
     "VehicleConfig",
 ]

@@ -7,8 +7,10 @@ The class is plumbing: specs, seeding, action checks, and reset muxing. The phys
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import partial
 
+import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Composite, Unbounded
@@ -18,6 +20,7 @@ from torchpark.config import ParkingConfig, check_occupancy
 from torchpark.geometry import BoxFrame, box_frame
 from torchpark.lidar import line_rotation
 from torchpark.lot import build_layout, draw_goals_and_cars, draw_start_candidates
+from torchpark.rendering import LotRenderer, frame_grid
 from torchpark.simulation import ParkingState, World, parking_step, reset_rows
 
 
@@ -84,6 +87,7 @@ class ParkingEnv(EnvBase):
         self._generator = torch.Generator(device=self.device)
         self._set_seed(seed)
         self._init_state()
+        self._renderer: LotRenderer | None = None
 
     # ------------------------------------------------------------------ configuration
     @property
@@ -148,6 +152,33 @@ class ParkingEnv(EnvBase):
     def state(self) -> ParkingState:
         """The current per-env state (read-only view for analysis and tests)."""
         return self._state
+
+    # ------------------------------------------------------------------ pictures
+    def render(self, index: int = 0) -> np.ndarray:
+        """Picture of env ``index``'s lot now, (H, W, 3) uint8 (see :mod:`torchpark.rendering`)."""
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) \
+                or not 0 <= index < self.num_envs:
+            raise IndexError(f"index must be an int in [0, {self.num_envs - 1}], got {index!r}")
+        return self.render_grid([int(index)])
+
+    def render_grid(self, indices: Sequence[int] | None = None, columns: int | None = None
+                    ) -> np.ndarray:
+        """Pictures of several envs' lots (default: all) tiled row by row into one image."""
+        indices = list(range(self.num_envs)) if indices is None else [int(i) for i in indices]
+        bad = [i for i in indices if not 0 <= i < self.num_envs]
+        if bad or not indices:
+            raise IndexError(f"indices must be non-empty ints in [0, {self.num_envs - 1}], "
+                             f"got {bad or indices}")
+        if self._renderer is None:
+            self._renderer = LotRenderer(self.layout, self.config)
+        rows = torch.tensor(indices, device=self.device)
+        s = self.layout.num_slots
+        parked = (self._state.present[rows, :s] > 0.5).cpu().numpy()
+        goal = self._state.goal_slot[rows].cpu().numpy()
+        pose = self._state.pose[rows].cpu().numpy()
+        lidar = self._observation[rows, 7:].cpu().numpy()
+        frames = [self._renderer.frame(*row) for row in zip(parked, goal, pose, lidar, strict=True)]
+        return frames[0] if len(frames) == 1 else frame_grid(frames, columns)
 
     # ------------------------------------------------------------------ EnvBase hooks
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:

@@ -20,6 +20,10 @@ class EnvConfig:
     device: str = "cpu"
     compile_step: bool = False
     max_steps: int = 1000
+    # Append the goal seen from the car (torchpark.features) to the policy's input.
+    goal_features: bool = False
+    # The training env's success threshold on C (evaluation always uses the paper's 4e-4).
+    success_threshold: float = 4e-4
 
 
 @dataclass
@@ -44,6 +48,7 @@ class LossConfig:
     mini_batch_size: int = 64
     ppo_epochs: int = 10
     max_grad_norm: float = 0.5
+    reward_scale: float = 1.0  # rewards are multiplied by this before GAE and the critic
 
 
 @dataclass

@@ -1,12 +1,14 @@
 """Per-occupancy evaluation of a checkpoint, beside the paper's Table 2.
 
     python -m trainers.evaluate CHECKPOINT [--episodes 200] [--out DIR] [--seed 1]
+                                           [--videos mp4|gif|none]
 
 Runs the deterministic policy (the TanhNormal's mode) for ``--episodes`` episodes at each
 occupancy level on lots the training never drew (its own seed; the same goals and starts at
 every level, so the levels differ only in their parked cars), and prints and writes
 (``evaluation.md``, ``evaluation.csv``) success, collision and timeout rates, mean episode
-length, and the median and 90th percentile of the final position and heading errors.
+length, and the median and 90th percentile of the final position and heading errors; with
+``--videos`` (mp4 by default) also one rollout video per level.
 """
 
 from __future__ import annotations
@@ -18,13 +20,15 @@ from pathlib import Path
 
 import torch
 from omegaconf import OmegaConf
-from torchrl.envs import TransformedEnv, VecNormV2
+from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchpark import ParkingConfig, ParkingEnv
 from torchpark.curriculum import PAPER_LEVELS
+from torchpark.recording import record_video
 from trainers.config import TrainConfig
 from trainers.models import NORMALISED, make_ppo_models
+from trainers.ppo import policy_input
 
 # Table 2 of the paper: success rate per curriculum phase (occupancy level).
 PAPER_SUCCESS = dict(zip(PAPER_LEVELS, (0.20, 0.52, 0.65, 0.64, 0.59, 0.62), strict=True))
@@ -39,16 +43,25 @@ def load(path: str) -> tuple[TrainConfig, dict]:
     return OmegaConf.to_object(merged), checkpoint
 
 
+def make_eval_env(cfg: TrainConfig, checkpoint: dict, occupancy: float, num_envs: int,
+                  seed: int) -> TransformedEnv:
+    """``num_envs`` lots at ``occupancy`` with the paper's success test, feeding the policy
+    the checkpoint's (frozen) normalisation."""
+    base = ParkingEnv(num_envs, device=cfg.env.device, seed=seed,
+                      config=ParkingConfig(max_steps=cfg.env.max_steps))
+    base.occupancy = occupancy
+    inputs = policy_input(cfg)
+    env = TransformedEnv(base, Compose(*inputs))
+    norm = inputs[-1]
+    norm.load_state_dict(checkpoint["obs_norm"])
+    norm.freeze()
+    return env
+
+
 def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
                    episodes: int, seed: int) -> dict[str, float]:
     """One episode in each of ``episodes`` lots at ``occupancy``: the row of the table."""
-    base = ParkingEnv(episodes, device=cfg.env.device, seed=seed,
-                      config=ParkingConfig(max_steps=cfg.env.max_steps))
-    base.occupancy = occupancy
-    norm = VecNormV2(in_keys=["observation"], out_keys=[NORMALISED], reduce_batch_dims=True)
-    env = TransformedEnv(base, norm)
-    norm.load_state_dict(checkpoint["obs_norm"])
-    norm.freeze()
+    env = make_eval_env(cfg, checkpoint, occupancy, episodes, seed)
     td = env.reset()
     ended = torch.zeros(episodes, dtype=torch.bool)
     final = torch.zeros(episodes, 7)
@@ -86,13 +99,23 @@ def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
     }
 
 
-def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1
-             ) -> list[dict[str, float]]:
+def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
+             videos: Path | None = None, video_format: str = "mp4") -> list[dict[str, float]]:
+    """The table's rows, one per level; with ``videos``, also one rollout video per level
+    (``rollout_occ{percent}.{video_format}``) of the deterministic policy in that directory."""
     cfg, checkpoint = load(path)
-    probe = ParkingEnv(1, config=ParkingConfig(max_steps=cfg.env.max_steps))
-    actor, _ = make_ppo_models(probe.obs_dim, probe.action_spec, cfg.model)
+    probe = TransformedEnv(ParkingEnv(1), Compose(*policy_input(cfg)))
+    actor, _ = make_ppo_models(probe.observation_spec[NORMALISED].shape[-1], probe.action_spec,
+                               cfg.model)
     actor.load_state_dict(checkpoint["actor"])
-    return [evaluate_level(actor, checkpoint, cfg, level, episodes, seed) for level in levels]
+    rows = []
+    for level in levels:
+        rows.append(evaluate_level(actor, checkpoint, cfg, level, episodes, seed))
+        if videos is not None:
+            env = make_eval_env(cfg, checkpoint, level, 1, seed)
+            with set_exploration_type(ExplorationType.DETERMINISTIC):
+                record_video(env, actor, videos / f"rollout_occ{round(100 * level)}.{video_format}")
+    return rows
 
 
 def to_markdown(rows: list[dict[str, float]]) -> str:
@@ -112,12 +135,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=200, help="per occupancy level")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--out", default=None, help="directory (default: the checkpoint's)")
+    parser.add_argument("--videos", choices=("mp4", "gif", "none"), default="mp4",
+                        help="one rollout video per occupancy level, in --out")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
-    rows = evaluate(args.checkpoint, args.episodes, seed=args.seed)
     out = Path(args.out) if args.out else Path(args.checkpoint).parent
     out.mkdir(parents=True, exist_ok=True)
+    rows = evaluate(args.checkpoint, args.episodes, seed=args.seed,
+                    videos=None if args.videos == "none" else out, video_format=args.videos)
     table = to_markdown(rows)
     (out / "evaluation.md").write_text(table + "\n")
     with open(out / "evaluation.csv", "w", newline="") as f:

@@ -17,13 +17,23 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 from torchrl.collectors import Collector
-from torchrl.envs import Compose, InitTracker, RewardSum, StepCounter, TransformedEnv, VecNormV2
+from torchrl.envs import (
+    Compose,
+    InitTracker,
+    RewardScaling,
+    RewardSum,
+    StepCounter,
+    Transform,
+    TransformedEnv,
+    VecNormV2,
+)
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 from torchrl.record.loggers import TensorboardLogger
 from tqdm import tqdm
 
-from torchpark import OccupancyCurriculum, ParkingConfig, ParkingEnv
+from torchpark import OccupancyCurriculum, ParkingConfig, ParkingEnv, RewardConfig
+from torchpark.features import GoalFrameFeatures
 from trainers.config import TrainConfig, load_config
 from trainers.models import NORMALISED, make_ppo_models
 
@@ -34,17 +44,33 @@ _MODEL_SECTIONS = ("env", "model", "curriculum")
 def make_env(cfg: TrainConfig) -> TransformedEnv:
     """The training env: ParkingEnv, episode statistics, the curriculum, observation norm
     (written to ``NORMALISED``)."""
-    base = ParkingEnv(cfg.env.num_envs, device=cfg.env.device, seed=cfg.seed,
-                      config=ParkingConfig(max_steps=cfg.env.max_steps),
+    config = ParkingConfig(max_steps=cfg.env.max_steps,
+                           reward=RewardConfig(success_threshold=cfg.env.success_threshold))
+    base = ParkingEnv(cfg.env.num_envs, device=cfg.env.device, seed=cfg.seed, config=config,
                       compile_step=cfg.env.compile_step)
     return TransformedEnv(base, Compose(
         InitTracker(), StepCounter(), RewardSum(),
         OccupancyCurriculum(cfg.curriculum.levels, cfg.curriculum.frames_per_level),
-        # Normalised into its own key: the networks read it, while the raw observation stays
-        # in the data for evaluation and analysis (final position and heading errors).
-        # reduce_batch_dims: one set of statistics over all envs (the default keeps one per env).
-        VecNormV2(in_keys=["observation"], out_keys=[NORMALISED], reduce_batch_dims=True),
+        # After RewardSum: the logged episode reward stays in the paper's units.
+        RewardScaling(loc=0.0, scale=cfg.loss.reward_scale),
+        *policy_input(cfg),
     ))
+
+
+def policy_input(cfg: TrainConfig) -> list[Transform]:
+    """The transforms from the raw observation to the networks' input ``NORMALISED``.
+
+    Normalised into its own key: the networks read it, while the raw observation stays in the
+    data for evaluation and analysis (final position and heading errors). reduce_batch_dims:
+    one set of statistics over all envs (VecNormV2's default keeps one per env).
+    """
+    source = ["observation"]
+    transforms: list[Transform] = []
+    if cfg.env.goal_features:
+        transforms.append(GoalFrameFeatures("observation", "observation_policy"))
+        source = ["observation_policy"]
+    return [*transforms, VecNormV2(in_keys=source, out_keys=[NORMALISED],
+                                   reduce_batch_dims=True)]
 
 
 def episode_stats(batch: TensorDict) -> dict[str, float]:
@@ -59,6 +85,7 @@ def episode_stats(batch: TensorDict) -> dict[str, float]:
         "episode/success_rate": nxt["success"][done].float().mean().item(),
         "episode/collision_rate": nxt["collision"][done].float().mean().item(),
         "episode/timeout_rate": nxt["truncated"][done].float().mean().item(),
+        "episode/final_distance": nxt["observation"][done][:, :2].norm(dim=-1).median().item(),
     }
 
 
@@ -85,7 +112,8 @@ def train(cfg: TrainConfig, resume: str | None = None) -> Path:
     torch.manual_seed(cfg.seed)
 
     env = make_env(cfg)
-    actor, critic = make_ppo_models(env.base_env.obs_dim, env.action_spec, cfg.model)
+    actor, critic = make_ppo_models(env.observation_spec[NORMALISED].shape[-1], env.action_spec,
+                                    cfg.model)
     loss_module = ClipPPOLoss(
         actor, critic, clip_epsilon=cfg.loss.clip_epsilon,
         entropy_bonus=cfg.loss.entropy_coeff > 0, entropy_coeff=cfg.loss.entropy_coeff,
@@ -116,7 +144,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> Path:
         torch.save({"config": dataclasses.asdict(cfg), "frames": frames,
                     "actor": actor.state_dict(), "critic": critic.state_dict(),
                     "optim": optim.state_dict(), "env": env.state_dict(),
-                    "obs_norm": env.transform[4].state_dict()}, path)
+                    "obs_norm": env.transform[-1].state_dict()}, path)
         return path
 
     next_checkpoint = (frames // cfg.logger.checkpoint_every + 1) * cfg.logger.checkpoint_every

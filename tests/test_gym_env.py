@@ -1,0 +1,209 @@
+"""The Gymnasium interface: registration, spaces, checks, autoreset, determinism, bad input."""
+
+from __future__ import annotations
+
+import warnings
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from gymnasium.wrappers.vector import RecordEpisodeStatistics
+
+import torchpark
+from torchpark import ENV_ID, ParkingGymEnv, ParkingVectorEnv
+
+# check_env's advice for any Box action space outside [-1, 1]; the issue and the spec fix the
+# action Box at [-5, 5] m/s x [-0.785, 0.785] rad, so this one recommendation is expected.
+NORMALISED_BOX_ADVICE = "we recommend using a symmetric and normalized space"
+
+
+def scripted(steps: int) -> np.ndarray:
+    t = np.arange(steps, dtype=np.float32)
+    return np.stack((3.0 * np.sin(t / 7.0), 0.7 * np.cos(t / 5.0)), axis=-1).astype(np.float32)
+
+
+def test_make_gives_single_env_with_the_paper_spaces():
+    env = gymnasium.make(ENV_ID)
+    assert isinstance(env.unwrapped, ParkingGymEnv)
+    assert env.observation_space.shape == (23,)
+    assert env.observation_space.dtype == np.float32
+    np.testing.assert_array_equal(env.action_space.low, np.float32([-5.0, -0.785]))
+    np.testing.assert_array_equal(env.action_space.high, np.float32([5.0, 0.785]))
+    obs, info = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    assert set(info) == {"success", "collision", "occupancy"}
+
+
+def test_check_env_passes_with_no_other_warning():
+    env = gymnasium.make(ENV_ID, render_mode="rgb_array", occupancy=0.5).unwrapped
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env)
+    messages = [str(w.message) for w in caught]
+    assert all(NORMALISED_BOX_ADVICE in m for m in messages), messages
+
+
+def test_single_env_episode_ends_as_gymnasium_defines():
+    env = gymnasium.make(ENV_ID, max_steps=30, occupancy=0.0)
+    env.reset(seed=4)
+    ends = []
+    for _ in range(30):
+        _, reward, terminated, truncated, info = env.step(np.zeros(2, np.float32))
+        assert isinstance(reward, float)
+        ends.append((terminated, truncated))
+    # Standing still: neither crash nor success; the time limit truncates step 30 only.
+    assert ends == [(False, False)] * 29 + [(False, True)]
+    assert info["occupancy"] == 0.0 and not info["success"] and not info["collision"]
+
+
+def test_make_kwargs_reach_the_batched_env():
+    env = gymnasium.make(ENV_ID, occupancy=0.9, max_steps=7, device="cpu").unwrapped
+    assert env.env.occupancy == 0.9 and env.env.config.max_steps == 7
+    _, info = env.reset(seed=1)
+    assert info["occupancy"] == pytest.approx(0.9)
+    _, info = env.reset(options={"occupancy": 0.2})
+    assert info["occupancy"] == pytest.approx(0.2)
+
+
+def test_same_seed_same_observations_and_frames():
+    envs = [gymnasium.make(ENV_ID, render_mode="rgb_array", occupancy=0.6) for _ in range(2)]
+    runs = []
+    for env in envs:
+        obs, _ = env.reset(seed=123)
+        seen, frames = [obs], [env.render()]
+        for action in scripted(40):
+            obs, _, terminated, truncated, _ = env.step(action)
+            seen.append(obs)
+            frames.append(env.render())
+            if terminated or truncated:
+                obs, _ = env.reset()
+        runs.append((np.stack(seen), np.stack(frames)))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+    other, _ = envs[0].reset(seed=124)
+    assert not np.array_equal(other, runs[0][0][0])
+
+
+def test_make_vec_is_one_batched_env():
+    env = gymnasium.make_vec(ENV_ID, num_envs=32)
+    assert isinstance(env, ParkingVectorEnv) and env.env.num_envs == 32
+    assert env.metadata["autoreset_mode"] == gymnasium.vector.AutoresetMode.SAME_STEP
+    assert env.observation_space == gymnasium.vector.utils.batch_space(
+        env.single_observation_space, 32)
+    assert env.action_space == gymnasium.vector.utils.batch_space(env.single_action_space, 32)
+    obs, info = env.reset(seed=0)
+    assert obs.shape == (32, 23) and obs.dtype == np.float32
+    assert env.observation_space.contains(obs)
+    env.action_space.seed(0)
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    assert (reward.shape, terminated.shape, truncated.shape) == ((32,), (32,), (32,))
+    assert terminated.dtype == truncated.dtype == np.bool_
+    assert info["success"].shape == (32,) and info["_success"].all()
+
+
+def test_vector_autoreset_matches_single_env_reset_by_hand():
+    """SAME_STEP: the step that ends an episode returns the next lot's first observation and
+    keeps the last one in info["final_obs"]; N = 1 vector == single env reset by hand."""
+    vec = gymnasium.make_vec(ENV_ID, num_envs=1, max_steps=15, occupancy=0.5)
+    single = gymnasium.make(ENV_ID, max_steps=15, occupancy=0.5)
+    v_obs, _ = vec.reset(seed=9)
+    s_obs, _ = single.reset(seed=9)
+    ends = 0
+    for action in scripted(50):
+        v_obs, v_rew, v_term, v_trunc, v_info = vec.step(action[None])
+        s_obs, s_rew, s_term, s_trunc, s_info = single.step(action)
+        assert v_rew[0] == pytest.approx(s_rew) and (v_term[0], v_trunc[0]) == (s_term, s_trunc)
+        if s_term or s_trunc:
+            ends += 1
+            assert v_info["_final_obs"][0]
+            np.testing.assert_array_equal(v_info["final_obs"][0], s_obs)
+            assert v_info["final_info"]["collision"][0] == s_info["collision"]
+            s_obs, _ = single.reset()
+        else:
+            assert "final_obs" not in v_info
+        np.testing.assert_array_equal(v_obs[0], s_obs)
+    assert ends >= 3
+
+
+def test_vector_env_works_with_gymnasium_vector_wrappers():
+    env = RecordEpisodeStatistics(gymnasium.make_vec(ENV_ID, num_envs=8, max_steps=10))
+    env.reset(seed=0)
+    finished = 0
+    for _ in range(25):
+        _, _, _, _, info = env.step(np.zeros((8, 2), np.float32))
+        if "episode" in info:
+            finished += int(info["_episode"].sum())
+            np.testing.assert_array_equal(info["episode"]["l"][info["_episode"]], 10)
+    assert finished == 16
+
+
+@pytest.mark.parametrize("action, match", [
+    (np.float32([5.5, 0.0]), "must lie in"),
+    (np.float32([0.0, -0.8]), "must lie in"),
+    (np.float32([np.nan, 0.0]), "finite"),
+    (np.float32([0.0, np.inf]), "finite"),
+    (np.float32([1.0, 0.0, 0.0]), "shape"),
+])
+def test_single_env_rejects_bad_actions(action, match):
+    env = ParkingGymEnv()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=match):
+        env.step(action)
+
+
+def test_vector_env_rejects_bad_actions():
+    env = ParkingVectorEnv(4)
+    env.reset(seed=0)
+    actions = np.zeros((4, 2), np.float32)
+    actions[2, 0] = 9.0
+    with pytest.raises(ValueError, match=r"must lie in .*\[\[9.0, 0.0\]\]"):
+        env.step(actions)
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros((3, 2), np.float32))
+
+
+def test_bad_construction_is_a_clear_error():
+    with pytest.raises(ValueError, match="render_mode must be None or one of"):
+        gymnasium.make(ENV_ID, render_mode="ansi")
+    with pytest.raises(TypeError, match="unknown keyword arguments \\['max_step'\\]"):
+        gymnasium.make(ENV_ID, max_step=3)
+    with pytest.raises(ValueError, match="occupancy"):
+        gymnasium.make(ENV_ID, occupancy=1.5)
+    env = ParkingGymEnv()
+    with pytest.raises(ValueError, match="options may hold only 'occupancy'"):
+        env.reset(options={"density": 0.3})
+
+
+def test_registration_is_idempotent():
+    torchpark.register()
+    assert ENV_ID in gymnasium.registry
+
+
+def test_record_video_wrapper_writes_an_episode(tmp_path):
+    from gymnasium.wrappers import RecordVideo  # writes with moviepy, a dev dependency
+
+    folder = tmp_path / "videos"
+    env = RecordVideo(gymnasium.make(ENV_ID, render_mode="rgb_array", max_steps=20),
+                      video_folder=str(folder), episode_trigger=lambda episode: True,
+                      disable_logger=True)
+    env.reset(seed=0)
+    done = False
+    while not done:
+        _, _, terminated, truncated, _ = env.step(np.float32([1.0, 0.1]))
+        done = terminated or truncated
+    env.close()
+    assert [p.suffix for p in folder.iterdir()] == [".mp4"]
+
+
+def test_stable_baselines3_ppo_trains_on_the_env():
+    """The paper's own tool chain: SB3 PPO on torchpark/Parking-v0 for a few thousand steps."""
+    from stable_baselines3 import PPO
+
+    env = gymnasium.make(ENV_ID, max_steps=200)
+    model = PPO("MlpPolicy", env, n_steps=512, batch_size=128, n_epochs=2, seed=0, device="cpu")
+    model.learn(total_timesteps=2048)
+    assert model.num_timesteps == 2048
+    obs, _ = env.reset(seed=1)
+    action, _ = model.predict(obs, deterministic=True)
+    assert env.action_space.contains(action)

@@ -1,0 +1,234 @@
+"""Gymnasium interface: ``gymnasium.make("torchpark/Parking-v0")`` and
+``gymnasium.make_vec("torchpark/Parking-v0", num_envs=N)``, both backed by one batched
+:class:`ParkingEnv` (N = 1 for the single env; no loop over N copies for the vector env).
+
+Keyword arguments of ``make``/``make_vec``: ``occupancy``, ``device``, ``seed`` (the initial
+seed; ``reset(seed=...)`` reseeds), ``compile_step``, ``config`` (a :class:`ParkingConfig`) and
+any :class:`ParkingConfig` field (``max_steps=500``, ``reward=RewardConfig(...)``), which
+replaces that field of ``config``.
+
+Actions must lie in the action Box and be finite (ValueError otherwise): the torchrl env clamps
+out-of-range actions, a Gymnasium env states its bounds instead. Observations are the paper's
+23 floats (see :class:`ParkingEnv`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar
+
+import gymnasium
+import numpy as np
+import torch
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from tensordict import TensorDict, TensorDictBase
+
+from torchpark.config import ParkingConfig
+from torchpark.env import ParkingEnv
+
+ENV_ID = "torchpark/Parking-v0"
+RENDER_MODES = ["rgb_array"]
+INFO_KEYS = ("success", "collision", "occupancy")
+
+
+def _make_batched(num_envs: int, occupancy: float | None, device: torch.device | str,
+                  seed: int | None, compile_step: bool, config: ParkingConfig | None,
+                  fields: dict[str, Any]) -> ParkingEnv:
+    config = config if config is not None else ParkingConfig()
+    names = {f.name for f in dataclasses.fields(ParkingConfig)}
+    unknown = sorted(set(fields) - names)
+    if unknown:
+        raise TypeError(f"unknown keyword arguments {unknown}: expected occupancy, device, "
+                        f"seed, compile_step, config, render_mode or ParkingConfig fields "
+                        f"{sorted(names)}")
+    config = dataclasses.replace(config, **fields)
+    env = ParkingEnv(num_envs, device=device, seed=seed, config=config, compile_step=compile_step)
+    if occupancy is not None:
+        env.occupancy = occupancy
+    return env
+
+
+def _check_render_mode(render_mode: str | None) -> str | None:
+    if render_mode is not None and render_mode not in RENDER_MODES:
+        raise ValueError(f"render_mode must be None or one of {RENDER_MODES}, got {render_mode!r}")
+    return render_mode
+
+
+def _spaces(env: ParkingEnv) -> tuple[spaces.Box, spaces.Box]:
+    """The single env's observation and action Boxes (float32)."""
+    veh, n_rays = env.config.vehicle, env.config.lidar.n_rays
+    # The goal lies in the lot; the rear axle lies inside the car's box, which the colliding
+    # step moves at most max_speed * dt past a wall's inner face.
+    reach = env.config.lot.wall_thickness + veh.max_speed * veh.dt
+    reach_x, reach_y = env.layout.width + reach, env.layout.height + reach
+    high = np.array([reach_x, reach_y, 1, 1, veh.max_speed, 1, 1] + [1] * n_rays, np.float32)
+    low = -high
+    low[7:] = 0.0
+    observation = spaces.Box(low, high, dtype=np.float32)
+    action = spaces.Box(np.array([-veh.max_speed, -veh.max_steer], np.float32),
+                        np.array([veh.max_speed, veh.max_steer], np.float32), dtype=np.float32)
+    return observation, action
+
+
+def _checked_actions(actions: Any, space: spaces.Box, shape: tuple[int, ...],
+                     device: torch.device) -> torch.Tensor:
+    """numpy-like actions -> float32 tensor, with a clear error for a wrong shape, a
+    non-finite value or a value outside the Box."""
+    array = np.asarray(actions, dtype=np.float32)
+    if array.shape != shape:
+        raise ValueError(f"action must have shape {shape} = [v m/s, delta rad], "
+                         f"got {array.shape}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"action must be finite (no NaN or inf), got {array.tolist()}")
+    outside = ((array < space.low) | (array > space.high)).reshape(-1, 2).any(-1)
+    if outside.any():
+        raise ValueError(f"action must lie in v in [{space.low[0]}, {space.high[0]}] m/s and "
+                         f"delta in [{space.low[1]}, {space.high[1]}] rad, got "
+                         f"{array.reshape(-1, 2)[outside].tolist()}")
+    return torch.from_numpy(array).to(device)
+
+
+def _numpy_info(td: TensorDictBase) -> dict[str, np.ndarray]:
+    """success, collision (bool) and occupancy (float32), each (N,)."""
+    return {key: td[key][:, 0].cpu().numpy() for key in INFO_KEYS}
+
+
+class ParkingGymEnv(gymnasium.Env):
+    """One parking lot as a Gymnasium env (numpy in and out), backed by ``ParkingEnv(1)``.
+
+    ``terminated`` is a collision or a success; ``truncated`` is the step limit
+    (``ParkingConfig.max_steps``, 1000) without either. ``info`` holds ``success``,
+    ``collision`` (bool) and ``occupancy`` (float, the occupancy the lot was drawn with).
+    ``reset(options={"occupancy": p})`` changes the occupancy of this and later lots.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": RENDER_MODES, "render_fps": 10}
+
+    def __init__(self, render_mode: str | None = None, *, occupancy: float | None = None,
+                 device: torch.device | str = "cpu", seed: int | None = None,
+                 compile_step: bool = False, config: ParkingConfig | None = None,
+                 **fields: Any) -> None:
+        self.render_mode = _check_render_mode(render_mode)
+        self.env = _make_batched(1, occupancy, device, seed, compile_step, config, fields)
+        self.observation_space, self.action_space = _spaces(self.env)
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / self.env.config.vehicle.dt)}
+        self._action = TensorDict({"action": torch.zeros(1, 2, device=self.env.device)},
+                                  batch_size=[1], device=self.env.device)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        if seed is not None:
+            self.env.set_seed(seed)
+        options = dict(options or {})
+        if "occupancy" in options:
+            self.env.occupancy = options.pop("occupancy")
+        if options:
+            raise ValueError(f"options may hold only 'occupancy', got {sorted(options)}")
+        td = self.env.reset()
+        return td["observation"][0].cpu().numpy(), self._info(td)
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        self._action["action"] = _checked_actions(action, self.action_space, (2,),
+                                                  self.env.device)[None]
+        nxt = self.env.step(self._action)["next"]
+        return (nxt["observation"][0].cpu().numpy(), float(nxt["reward"][0, 0]),
+                bool(nxt["terminated"][0, 0]), bool(nxt["truncated"][0, 0]), self._info(nxt))
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode; pass "
+                                  "render_mode='rgb_array' to gymnasium.make")
+            return None
+        return self.env.render(0)
+
+    @staticmethod
+    def _info(td: TensorDictBase) -> dict[str, Any]:
+        info = _numpy_info(td)
+        return {"success": bool(info["success"][0]), "collision": bool(info["collision"][0]),
+                "occupancy": float(info["occupancy"][0])}
+
+
+class ParkingVectorEnv(VectorEnv):
+    """N parking lots as one native Gymnasium ``VectorEnv`` backed by one ``ParkingEnv(N)``.
+
+    Autoreset: ``AutoresetMode.SAME_STEP``. A lot whose episode ends is redrawn in the same
+    ``step``: the returned observation is the new lot's first one, the last observation of
+    the ended episode is in ``info["final_obs"]`` and its info in ``info["final_info"]``
+    (rows marked by ``info["_final_obs"]``), as Gymnasium's ``SyncVectorEnv`` does in that
+    mode. ``info`` also holds ``success``, ``collision`` and ``occupancy`` arrays (N,).
+    ``render()`` returns a tuple of the first ``render_envs`` lots' frames.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": RENDER_MODES, "render_fps": 10,
+                                          "autoreset_mode": AutoresetMode.SAME_STEP}
+
+    def __init__(self, num_envs: int, render_mode: str | None = None, *,
+                 occupancy: float | None = None, device: torch.device | str = "cpu",
+                 seed: int | None = None, compile_step: bool = False,
+                 config: ParkingConfig | None = None, render_envs: int = 16,
+                 **fields: Any) -> None:
+        self.render_mode = _check_render_mode(render_mode)
+        self.env = _make_batched(num_envs, occupancy, device, seed, compile_step, config, fields)
+        self.num_envs = num_envs
+        self.render_envs = min(render_envs, num_envs)
+        self.single_observation_space, self.single_action_space = _spaces(self.env)
+        self.observation_space = gymnasium.vector.utils.batch_space(
+            self.single_observation_space, num_envs)
+        self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, num_envs)
+        self._td: TensorDictBase | None = None
+
+    def reset(self, *, seed: int | list[int] | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        if isinstance(seed, list):
+            raise ValueError("seed must be one int for the whole batch (one generator), "
+                             f"got a list of {len(seed)}")
+        if seed is not None:
+            self.env.set_seed(seed)
+        options = dict(options or {})
+        if "occupancy" in options:
+            self.env.occupancy = options.pop("occupancy")
+        if options:
+            raise ValueError(f"options may hold only 'occupancy', got {sorted(options)}")
+        self._td = self.env.reset()
+        return self._td["observation"].cpu().numpy(), self._info(self._td)
+
+    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                          dict[str, Any]]:
+        if self._td is None:
+            raise RuntimeError("call reset() before step()")
+        self._td["action"] = _checked_actions(actions, self.single_action_space,
+                                              (self.num_envs, 2), self.env.device)
+        out, self._td = self.env.step_and_maybe_reset(self._td)
+        nxt = out["next"]
+        done = nxt["done"][:, 0].cpu().numpy()
+        info = self._info(self._td)
+        if done.any():
+            final = self._info(nxt)
+            info.update(final_obs=nxt["observation"].cpu().numpy(), _final_obs=done,
+                        final_info={**final, **{f"_{k}": done for k in final}},
+                        _final_info=done)
+        return (self._td["observation"].cpu().numpy(), nxt["reward"][:, 0].cpu().numpy(),
+                nxt["terminated"][:, 0].cpu().numpy(), nxt["truncated"][:, 0].cpu().numpy(),
+                info)
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode; pass "
+                                  "render_mode='rgb_array' to gymnasium.make_vec")
+            return None
+        return tuple(self.env.render(i) for i in range(self.render_envs))
+
+    def _info(self, td: TensorDictBase) -> dict[str, Any]:
+        info = _numpy_info(td)
+        mask = np.ones(self.num_envs, dtype=bool)
+        return {**info, **{f"_{k}": mask for k in info}}
+
+
+def register() -> None:
+    """Register ``torchpark/Parking-v0`` (done on ``import torchpark``; idempotent)."""
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=ENV_ID, entry_point="torchpark.gym_env:ParkingGymEnv",
+                           vector_entry_point="torchpark.gym_env:ParkingVectorEnv")
