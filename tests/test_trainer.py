@@ -11,7 +11,7 @@ import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from trainers.config import load_config
-from trainers.evaluate import COLUMNS
+from trainers.evaluate import COLUMNS, Episodes
 from trainers.evaluate import main as evaluate_main
 from trainers.ppo import main, train
 
@@ -97,3 +97,22 @@ def test_evaluation_table_has_the_stated_columns(smoke_run, tmp_path):
     videos = sorted(p.name for p in tmp_path.glob("rollout_occ*.mp4"))
     assert videos == [f"rollout_occ{p}.mp4" for p in sorted(["0", "20", "40", "60", "80", "90"])]
     assert iio.improps(tmp_path / "rollout_occ90.mp4").shape[1:] == (384, 480, 3)
+
+
+def test_failure_modes_follow_their_definitions():
+    """grazing: a collision at |v| <= 1 m/s; freezing: a timeout that moved < 1 m in its last
+    100 steps."""
+    steps = 300
+    poses = torch.zeros(steps + 1, 4, 3)
+    poses[:, 2, 0] = torch.linspace(0.0, 30.0, steps + 1)  # drives on until its timeout
+    poses[:200, 3, 0] = torch.linspace(0.0, 20.0, 200)  # stops after step 199, then waits
+    poses[200:, 3, 0] = 20.0
+    final = torch.zeros(4, 7)
+    final[:, 4] = torch.tensor([0.5, 3.0, 1.0, 0.0])  # speed at the end
+    run = Episodes(success=torch.zeros(4, dtype=torch.bool),
+                   collision=torch.tensor([True, True, False, False]),
+                   timeout=torch.tensor([False, False, True, True]),
+                   length=torch.tensor([50.0, 60.0, 300.0, 300.0]), final=final, poses=poses,
+                   goal_slot=torch.zeros(4, dtype=torch.long))
+    assert run.grazing.tolist() == [True, False, False, False]
+    assert run.freezing.tolist() == [False, False, False, True]

@@ -7,7 +7,8 @@ Runs the deterministic policy (the TanhNormal's mode) for ``--episodes`` episode
 occupancy level on lots the training never drew (its own seed; the same goals and starts at
 every level, so the levels differ only in their parked cars), and prints and writes
 (``evaluation.md``, ``evaluation.csv``) success, collision and timeout rates, mean episode
-length, and the median and 90th percentile of the final position and heading errors; with
+length, the failure modes (grazing collisions, freezing: see GRAZING_SPEED, FREEZE_DISTANCE),
+and the median and 90th percentile of the final position and heading errors; with
 ``--videos`` (mp4 by default) also one rollout video per level.
 """
 
@@ -16,12 +17,14 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from omegaconf import OmegaConf
 from torchrl.envs import Compose, TransformedEnv
-from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+from torchrl.modules import ProbabilisticActor
 
 from torchpark import ParkingConfig, ParkingEnv
 from torchpark.curriculum import PAPER_LEVELS
@@ -32,8 +35,8 @@ from trainers.ppo import policy_input
 
 # Table 2 of the paper: success rate per curriculum phase (occupancy level).
 PAPER_SUCCESS = dict(zip(PAPER_LEVELS, (0.20, 0.52, 0.65, 0.64, 0.59, 0.62), strict=True))
-COLUMNS = ("occupancy", "episodes", "success", "collision", "timeout", "mean_length",
-           "pos_err_median_m", "pos_err_p90_m", "heading_err_median_deg",
+COLUMNS = ("occupancy", "episodes", "success", "collision", "timeout", "grazing", "freezing",
+           "mean_length", "pos_err_median_m", "pos_err_p90_m", "heading_err_median_deg",
            "heading_err_p90_deg", "paper_success")
 
 
@@ -58,45 +61,116 @@ def make_eval_env(cfg: TrainConfig, checkpoint: dict, occupancy: float, num_envs
     return env
 
 
-def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
-                   episodes: int, seed: int) -> dict[str, float]:
-    """One episode in each of ``episodes`` lots at ``occupancy``: the row of the table."""
-    env = make_eval_env(cfg, checkpoint, occupancy, episodes, seed)
-    td = env.reset()
-    ended = torch.zeros(episodes, dtype=torch.bool)
-    final = torch.zeros(episodes, 7)
-    outcome = {key: torch.zeros(episodes, dtype=torch.bool)
+# Failure modes: a collision at |v| <= GRAZING_SPEED is "grazing" (the car crept into an
+# obstacle); a timeout whose rear axle moved less than FREEZE_DISTANCE over its last
+# FREEZE_STEPS steps is "freezing" (the car stopped short of the goal).
+GRAZING_SPEED = 1.0  # m/s
+FREEZE_DISTANCE = 1.0  # m
+FREEZE_STEPS = 100
+
+
+@dataclass
+class Episodes:
+    """The first episode of each of N lots. Bool/float tensors (N,) unless stated.
+
+    poses: (T + 1, N, 3) rear-axle poses from the reset on (rows repeat their last pose
+    after their end); final: (N, 7) the last observation's [dx, dy, cos psi, sin psi, v,
+    cos alpha, sin alpha]; length: steps taken.
+    """
+
+    success: torch.Tensor
+    collision: torch.Tensor
+    timeout: torch.Tensor
+    length: torch.Tensor
+    final: torch.Tensor
+    poses: torch.Tensor
+    goal_slot: torch.Tensor
+
+    @property
+    def position_error(self) -> torch.Tensor:
+        """Distance from the rear axle to its goal at the end, m."""
+        return torch.hypot(self.final[:, 0], self.final[:, 1])
+
+    @property
+    def heading_error(self) -> torch.Tensor:
+        """|wrap(alpha - psi)| at the end, degrees."""
+        _, _, cos_psi, sin_psi, _, cos_alpha, sin_alpha = self.final.T
+        sin_err = sin_alpha * cos_psi - cos_alpha * sin_psi
+        cos_err = cos_alpha * cos_psi + sin_alpha * sin_psi
+        return torch.atan2(sin_err, cos_err).abs() * (180.0 / math.pi)
+
+    @property
+    def grazing(self) -> torch.Tensor:
+        return self.collision & (self.final[:, 4].abs() <= GRAZING_SPEED)
+
+    @property
+    def freezing(self) -> torch.Tensor:
+        end = self.length.long()
+        rows = torch.arange(end.shape[0])
+        before = self.poses[(end - FREEZE_STEPS).clamp(min=0), rows, :2]
+        moved = (self.poses[end, rows, :2] - before).norm(dim=-1)
+        return self.timeout & (moved < FREEZE_DISTANCE)
+
+
+def run_episodes(actor, env: TransformedEnv, max_steps: int) -> Episodes:
+    """Run the deterministic policy until every lot's first episode has ended. No row is
+    reset: a row that ended steps on, unrecorded, until the last one ends."""
+    base = env.base_env
+    n = base.num_envs
+    ended = torch.zeros(n, dtype=torch.bool)
+    final = torch.zeros(n, 7)
+    outcome = {key: torch.zeros(n, dtype=torch.bool)
                for key in ("success", "collision", "truncated")}
-    length = torch.zeros(episodes)
+    length = torch.zeros(n)
+    td = env.reset()
+    poses = [base.state.pose.cpu()]
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        for step in range(1, cfg.env.max_steps + 1):
-            out, td = env.step_and_maybe_reset(actor(td))
-            nxt = out["next"]
-            first = nxt["done"][:, 0].cpu() & ~ended  # only each lot's first episode counts
+        for step in range(1, max_steps + 1):
+            td = env.step(actor(td))
+            nxt = td["next"]
+            first = nxt["done"][:, 0].cpu() & ~ended
             final[first] = nxt["observation"][:, :7].cpu()[first]
             for key in outcome:
                 outcome[key] |= first & nxt[key][:, 0].cpu()
             length[first] = step
+            poses.append(torch.where(ended[:, None], poses[-1], base.state.pose.cpu()))
             ended |= first
             if bool(ended.all()):
                 break
-    dx, dy, cos_psi, sin_psi, _, cos_alpha, sin_alpha = final.T
-    heading = torch.remainder(torch.atan2(sin_alpha, cos_alpha) - torch.atan2(sin_psi, cos_psi)
-                              + math.pi, 2 * math.pi) - math.pi
-    position = torch.hypot(dx, dy)
-    heading_deg = heading.abs() * (180.0 / math.pi)
+            td = step_mdp(td)
+    return Episodes(outcome["success"], outcome["collision"], outcome["truncated"], length,
+                    final, torch.stack(poses), base.state.goal_slot.cpu())
+
+
+def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
+                   episodes: int, seed: int) -> dict[str, float]:
+    """One episode in each of ``episodes`` lots at ``occupancy``: the row of the table."""
+    env = make_eval_env(cfg, checkpoint, occupancy, episodes, seed)
+    run = run_episodes(actor, env, cfg.env.max_steps)
+    position, heading = run.position_error, run.heading_error
     return {
         "occupancy": occupancy, "episodes": episodes,
-        "success": outcome["success"].float().mean().item(),
-        "collision": outcome["collision"].float().mean().item(),
-        "timeout": outcome["truncated"].float().mean().item(),
-        "mean_length": length.mean().item(),
+        "success": run.success.float().mean().item(),
+        "collision": run.collision.float().mean().item(),
+        "timeout": run.timeout.float().mean().item(),
+        "grazing": run.grazing.float().mean().item(),
+        "freezing": run.freezing.float().mean().item(),
+        "mean_length": run.length.mean().item(),
         "pos_err_median_m": position.median().item(),
         "pos_err_p90_m": position.quantile(0.9).item(),
-        "heading_err_median_deg": heading_deg.median().item(),
-        "heading_err_p90_deg": heading_deg.quantile(0.9).item(),
+        "heading_err_median_deg": heading.median().item(),
+        "heading_err_p90_deg": heading.quantile(0.9).item(),
         "paper_success": PAPER_SUCCESS.get(occupancy, float("nan")),
     }
+
+
+def make_policy(cfg: TrainConfig, checkpoint: dict) -> ProbabilisticActor:
+    """The checkpoint's actor (it reads ``NORMALISED``, see :func:`make_eval_env`)."""
+    probe = TransformedEnv(ParkingEnv(1), Compose(*policy_input(cfg)))
+    actor, _ = make_ppo_models(probe.observation_spec[NORMALISED].shape[-1], probe.action_spec,
+                               cfg.model)
+    actor.load_state_dict(checkpoint["actor"])
+    return actor
 
 
 def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
@@ -104,10 +178,7 @@ def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
     """The table's rows, one per level; with ``videos``, also one rollout video per level
     (``rollout_occ{percent}.{video_format}``) of the deterministic policy in that directory."""
     cfg, checkpoint = load(path)
-    probe = TransformedEnv(ParkingEnv(1), Compose(*policy_input(cfg)))
-    actor, _ = make_ppo_models(probe.observation_spec[NORMALISED].shape[-1], probe.action_spec,
-                               cfg.model)
-    actor.load_state_dict(checkpoint["actor"])
+    actor = make_policy(cfg, checkpoint)
     rows = []
     for level in levels:
         rows.append(evaluate_level(actor, checkpoint, cfg, level, episodes, seed))

@@ -1,0 +1,131 @@
+"""Training curves from a run's TensorBoard events: the paper's Figure 2 and the losses.
+
+    python -m trainers.plots RUN_DIR [--out DIR]
+
+Reads the event files with TensorBoard's own ``EventAccumulator`` and draws, against frames,
+mean episode reward, mean episode length and the success / collision / timeout rates, each
+phase of the curriculum shaded and labelled with its occupancy (``training_curves.png``), and
+the PPO loss terms (``losses.png``).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only; notebooks show the returned figures inline
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.figure import Figure
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+Scalars = dict[str, tuple[np.ndarray, np.ndarray]]
+LOSSES = ("loss/objective", "loss/critic", "loss/kl_approx", "loss/clip_fraction")
+
+
+def read_scalars(run_dir: str | Path) -> Scalars:
+    """Every scalar tag of the event files under ``run_dir``: tag -> (frames, values)."""
+    files = sorted(Path(run_dir).rglob("events.out.tfevents.*"))
+    if not files:
+        raise FileNotFoundError(f"no TensorBoard event files under {str(run_dir)!r}")
+    scalars: dict[str, list] = {}
+    for file in files:
+        events = EventAccumulator(str(file), size_guidance={"scalars": 0})
+        events.Reload()
+        for tag in events.Tags()["scalars"]:
+            scalars.setdefault(tag, []).extend((e.step, e.value) for e in events.Scalars(tag))
+    out = {}
+    for tag, pairs in scalars.items():
+        pairs.sort()
+        steps, values = zip(*pairs, strict=True)
+        out[tag] = (np.asarray(steps), np.asarray(values, dtype=np.float64))
+    return out
+
+
+def smooth(values: np.ndarray, window: int) -> np.ndarray:
+    """Trailing moving average over ``window`` points (fewer at the start)."""
+    cumsum = np.cumsum(np.insert(values, 0, 0.0))
+    ends = np.arange(1, len(values) + 1)
+    starts = np.maximum(ends - window, 0)
+    return (cumsum[ends] - cumsum[starts]) / (ends - starts)
+
+
+def shade_phases(ax, scalars: Scalars) -> None:
+    """Alternate shading for each curriculum phase, labelled with its occupancy."""
+    if "curriculum/phase" not in scalars:
+        return
+    frames, phase = scalars["curriculum/phase"]
+    _, occupancy = scalars["curriculum/occupancy"]
+    starts = np.flatnonzero(np.diff(phase, prepend=-1))
+    ends = np.append(starts[1:], len(frames) - 1)
+    for k, (a, b) in enumerate(zip(starts, ends, strict=True)):
+        if k % 2 == 0:
+            ax.axvspan(frames[a], frames[b], color="0.92", zorder=0)
+        ax.text((frames[a] + frames[b]) / 2, 1.0, f"{occupancy[a]:.0%}", ha="center",
+                va="bottom", fontsize=8, transform=ax.get_xaxis_transform())
+
+
+def plot_training_curves(scalars: Scalars, window: int = 10) -> Figure:
+    """Reward, length and outcome rates against frames (moving average over ``window``
+    logged batches), curriculum phases shaded: the paper's Figure 2."""
+    fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True, layout="constrained")
+    panels = [
+        (axes[0], [("episode/reward", "mean episode reward", "C0")], None),
+        (axes[1], [("episode/length", "mean episode length", "C1")], None),
+        (axes[2], [("episode/success_rate", "success", "C2"),
+                   ("episode/collision_rate", "collision", "C3"),
+                   ("episode/timeout_rate", "timeout", "C7")], (-0.02, 1.02)),
+    ]
+    for ax, series, ylim in panels:
+        shade_phases(ax, scalars)
+        for tag, label, colour in series:
+            if tag in scalars:
+                frames, values = scalars[tag]
+                ax.plot(frames, values, color=colour, alpha=0.2, lw=0.8)
+                ax.plot(frames, smooth(values, window), color=colour, lw=1.6, label=label)
+        ax.set_ylabel(series[0][1] if len(series) == 1 else "rate of ended episodes")
+        if ylim:
+            ax.set_ylim(*ylim)
+            ax.legend(loc="center left", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("frames")
+    fig.suptitle("Training (occupancy of each curriculum phase on top)")
+    return fig
+
+
+def plot_losses(scalars: Scalars, window: int = 10) -> Figure:
+    """The PPO loss terms of the last minibatch of each batch, against frames."""
+    tags = [t for t in LOSSES if t in scalars]
+    fig, axes = plt.subplots(len(tags), 1, figsize=(9, 2 * len(tags)), sharex=True,
+                             layout="constrained", squeeze=False)
+    for ax, tag in zip(axes[:, 0], tags, strict=True):
+        shade_phases(ax, scalars)
+        frames, values = scalars[tag]
+        ax.plot(frames, values, alpha=0.25, lw=0.8)
+        ax.plot(frames, smooth(values, window), lw=1.5)
+        ax.set_ylabel(tag.split("/")[1])
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("frames")
+    return fig
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m trainers.plots",
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir")
+    parser.add_argument("--out", default=None, help="directory (default: run_dir)")
+    args = parser.parse_args(argv)
+    out = Path(args.out or args.run_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    scalars = read_scalars(args.run_dir)
+    for name, fig in (("training_curves.png", plot_training_curves(scalars)),
+                      ("losses.png", plot_losses(scalars))):
+        fig.savefig(out / name, dpi=120)
+        plt.close(fig)
+        print(out / name)
+
+
+if __name__ == "__main__":
+    main()
