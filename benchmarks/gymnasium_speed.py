@@ -5,7 +5,8 @@
 For each N: env-steps/s of the torchrl ``ParkingEnv.step`` (with torchrl's own bookkeeping,
 what a user loop calls) and of the Gymnasium env on top of it (``gymnasium.make`` for N = 1,
 ``gymnasium.make_vec`` otherwise: numpy in and out, action checks, autoreset), same process,
-same random actions, episodes running into crashes and resets. Then frames/s of
+same random actions, episodes running into crashes and resets, best of 3 each (alternating).
+Then frames/s of
 ``ParkingEnv.render`` (Pillow) and of writing them to MP4. Prints Markdown tables and ratios.
 """
 
@@ -109,14 +110,18 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 1024])
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--compiled", action="store_true", help="compile_step=True for both")
+    parser.add_argument("--repeats", type=int, default=3, help="best of, alternating the two")
     args = parser.parse_args()
     print(f"# {platform.processor() or platform.machine()}, {torch.get_num_threads()} threads, "
           f"torch {torch.__version__}, compiled={args.compiled}, occupancy 0.5\n")
     print("| N | torchrl ParkingEnv env-steps/s | Gymnasium env-steps/s | Gymnasium / torchrl |")
     print("|---:|---:|---:|---:|")
     for n in args.sizes:
-        base = torchrl_speed(n, args.seconds, args.compiled)
-        gym = gymnasium_speed(n, args.seconds, args.compiled)
+        # Alternate the two, best of --repeats each: this VM's speed drifts within minutes.
+        base = gym = 0.0
+        for _ in range(args.repeats):
+            base = max(base, torchrl_speed(n, args.seconds, args.compiled))
+            gym = max(gym, gymnasium_speed(n, args.seconds, args.compiled))
         kind = "make" if n == 1 else "make_vec"
         print(f"| {n} ({kind}) | {base:,.0f} | {gym:,.0f} | {gym / base:.2f} |", flush=True)
     fps, mp4, shape = render_speed(args.seconds)
