@@ -14,8 +14,6 @@ import argparse
 from pathlib import Path
 
 import matplotlib
-
-matplotlib.use("Agg")  # files only; notebooks show the returned figures inline
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
@@ -117,6 +115,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("run_dir")
     parser.add_argument("--out", default=None, help="directory (default: run_dir)")
     args = parser.parse_args(argv)
+    matplotlib.use("Agg")  # files only (in a notebook the figures show inline instead)
     out = Path(args.out or args.run_dir)
     out.mkdir(parents=True, exist_ok=True)
     scalars = read_scalars(args.run_dir)
