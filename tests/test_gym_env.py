@@ -161,6 +161,10 @@ def test_vector_env_rejects_bad_actions():
         env.step(actions)
     with pytest.raises(ValueError, match="shape"):
         env.step(np.zeros((3, 2), np.float32))
+    with pytest.raises(ValueError, match="seed must be one int"):
+        env.reset(seed=[1, 2, 3, 4])
+    with pytest.raises(RuntimeError, match="reset"):
+        ParkingVectorEnv(2).step(np.zeros((2, 2), np.float32))
 
 
 def test_bad_construction_is_a_clear_error():

@@ -181,10 +181,10 @@ class ParkingVectorEnv(VectorEnv):
 
     def reset(self, *, seed: int | list[int] | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
         if isinstance(seed, list):
             raise ValueError("seed must be one int for the whole batch (one generator), "
                              f"got a list of {len(seed)}")
+        super().reset(seed=seed)
         if seed is not None:
             self.env.set_seed(seed)
         options = dict(options or {})
