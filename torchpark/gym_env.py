@@ -89,6 +89,20 @@ def _checked_actions(actions: Any, space: spaces.Box, shape: tuple[int, ...],
     return torch.from_numpy(array).to(device)
 
 
+def _reset_lots(env: ParkingEnv, seed: int | None, options: dict[str, Any] | None
+                ) -> TensorDictBase:
+    """Reseed the env's generator (when ``seed`` is given), apply ``options["occupancy"]``
+    (the only option) and draw new lots for every env."""
+    if seed is not None:
+        env.set_seed(seed)
+    options = dict(options or {})
+    if "occupancy" in options:
+        env.occupancy = options.pop("occupancy")
+    if options:
+        raise ValueError(f"options may hold only 'occupancy', got {sorted(options)}")
+    return env.reset()
+
+
 def _numpy_info(td: TensorDictBase) -> dict[str, np.ndarray]:
     """success, collision (bool) and occupancy (float32), each (N,)."""
     return {key: td[key][:, 0].cpu().numpy() for key in INFO_KEYS}
@@ -119,14 +133,7 @@ class ParkingGymEnv(gymnasium.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
-        if seed is not None:
-            self.env.set_seed(seed)
-        options = dict(options or {})
-        if "occupancy" in options:
-            self.env.occupancy = options.pop("occupancy")
-        if options:
-            raise ValueError(f"options may hold only 'occupancy', got {sorted(options)}")
-        td = self.env.reset()
+        td = _reset_lots(self.env, seed, options)
         return td["observation"][0].cpu().numpy(), self._info(td)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -185,14 +192,7 @@ class ParkingVectorEnv(VectorEnv):
             raise ValueError("seed must be one int for the whole batch (one generator), "
                              f"got a list of {len(seed)}")
         super().reset(seed=seed)
-        if seed is not None:
-            self.env.set_seed(seed)
-        options = dict(options or {})
-        if "occupancy" in options:
-            self.env.occupancy = options.pop("occupancy")
-        if options:
-            raise ValueError(f"options may hold only 'occupancy', got {sorted(options)}")
-        self._td = self.env.reset()
+        self._td = _reset_lots(self.env, seed, options)
         return self._td["observation"].cpu().numpy(), self._info(self._td)
 
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
