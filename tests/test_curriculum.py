@@ -7,7 +7,7 @@ import torch
 from torchrl.collectors import Collector
 from torchrl.envs import TransformedEnv
 
-from torchpark import OccupancyCurriculum, ParkingEnv
+from torchpark import OccupancyCurriculum, ParkingConfig, ParkingEnv
 from torchpark.curriculum import PAPER_LEVELS
 
 
@@ -97,3 +97,13 @@ def test_evaluation_env_does_not_advance_training_counter():
 def test_bad_arguments_raise(kwargs, match):
     with pytest.raises(ValueError, match=match):
         OccupancyCurriculum(**kwargs)
+
+
+def test_held_actions_count_as_several_frames():
+    env = TransformedEnv(ParkingEnv(6, seed=0, config=ParkingConfig(action_repeat=5)),
+                         OccupancyCurriculum(frames_per_level=60))
+    td = env.reset()
+    for step in range(1, 5):
+        td = env.rand_step(td)["next"]
+        assert env.transform.frames_seen == 30 * step
+    assert env.transform.phase == 3 and env.base_env.occupancy == PAPER_LEVELS[2]

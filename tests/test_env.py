@@ -301,3 +301,68 @@ def test_cuda_matches_cpu():
         assert torch.allclose(out_cpu["reward"], out_gpu["reward"], atol=1e-3)
         td = out_cpu
         gpu._state = type(cpu.state)(*(t.cuda() for t in cpu.state))  # no drift between steps
+
+
+def test_action_repeat_equals_single_steps_and_stops_at_the_end():
+    k = 4
+    single = ParkingEnv(32, seed=9, config=ParkingConfig(occupancy=0.9))
+    held = ParkingEnv(32, seed=9, config=ParkingConfig(occupancy=0.9, action_repeat=k))
+    a, b = single.reset(), held.reset()
+    assert torch.equal(a["observation"], b["observation"])
+    action = torch.tensor([[3.0, 0.4]]).expand(32, 2)
+    ended = torch.zeros(32, dtype=torch.bool)
+    reward = torch.zeros(32)
+    observation = a["observation"].clone()
+    collided = torch.zeros(32, dtype=torch.bool)
+    for _ in range(k):
+        out = single.step(a.set("action", action))["next"]
+        live = ~ended
+        reward += torch.where(live, out["reward"][:, 0], 0.0)
+        observation[live] = out["observation"][live]
+        collided |= live & out["collision"][:, 0]
+        ended |= out["done"][:, 0]
+        a = out
+    out = held.step(b.set("action", action))["next"]
+    assert collided.any() and not collided.all()  # some rows end inside the held action
+    assert torch.allclose(out["reward"][:, 0], reward, atol=1e-4)
+    assert torch.allclose(out["observation"], observation, atol=1e-5)
+    assert torch.equal(out["collision"][:, 0], collided)
+    assert torch.equal(held.state.steps, torch.where(collided, held.state.steps, k))
+
+
+def test_emergency_brake_never_collides_and_holds_the_pose():
+    env = ParkingEnv(64, seed=2, config=ParkingConfig(occupancy=0.9, emergency_brake=True))
+    td = env.reset()
+    plain = ParkingEnv(64, seed=2, config=ParkingConfig(occupancy=0.9))
+    plain.reset()
+    action = torch.tensor([[5.0, 0.3]]).expand(64, 2)
+    for _ in range(100):
+        before = env.state.pose.clone()
+        td = env.step(td.set("action", action))["next"]
+        stopped = env.state.speed == 0
+        assert not td["collision"].any() and not td["done"].any()
+        assert torch.equal(env.state.pose[stopped], before[stopped])
+    assert stopped.all()  # full throttle ends against something everywhere
+    hits = 0
+    td = plain.reset()
+    for _ in range(100):
+        td = plain.step(td.set("action", action))["next"]
+        hits += int(td["collision"].sum())
+    assert hits > 0  # the same drive without the brake collides
+
+
+def test_randomize_step_counts_spreads_the_first_timeouts():
+    env = ParkingEnv(512, seed=0, config=ParkingConfig(max_steps=100))
+    td = env.reset()
+    env.randomize_step_counts()
+    steps = env.state.steps.clone()
+    assert steps.min() >= 0 and steps.max() < 100 and steps.unique().numel() > 50
+    other = ParkingEnv(512, seed=0, config=ParkingConfig(max_steps=100))
+    other.reset()
+    other.randomize_step_counts()
+    assert torch.equal(other.state.steps, steps)  # drawn from the env's own generator
+    first_end = torch.full((512,), -1)
+    for step in range(1, 101):
+        td = env.step(td.set("action", torch.zeros(512, 2)))["next"]
+        first_end = torch.where((first_end < 0) & td["truncated"][:, 0], step, first_end)
+    assert torch.equal(first_end, 100 - steps)

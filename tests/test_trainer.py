@@ -11,7 +11,7 @@ import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from trainers.config import load_config
-from trainers.evaluate import COLUMNS, Episodes
+from trainers.evaluate import COLUMNS, Episodes, evaluate
 from trainers.evaluate import main as evaluate_main
 from trainers.ppo import main, train
 
@@ -113,6 +113,35 @@ def test_failure_modes_follow_their_definitions():
                    collision=torch.tensor([True, True, False, False]),
                    timeout=torch.tensor([False, False, True, True]),
                    length=torch.tensor([50.0, 60.0, 300.0, 300.0]), final=final, poses=poses,
-                   goal_slot=torch.zeros(4, dtype=torch.long))
+                   goal_slot=torch.zeros(4, dtype=torch.long),
+                   steps=torch.tensor([50.0, 60.0, 300.0, 300.0]))
     assert run.grazing.tolist() == [True, False, False, False]
     assert run.freezing.tolist() == [False, False, False, True]
+    # With actions held for 5 steps of dt, poses are 5 steps apart: 100 steps = 20 poses.
+    held = dataclasses.replace(run, poses=poses[::5].clone(), length=run.length / 5, repeat=5)
+    held.poses[41:, 3, 0] = 20.0  # stops after env step 40 (200 steps of dt), then waits
+    assert held.freezing.tolist() == [False, False, False, True]
+
+
+def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
+    """Every training option off the paper's path at once: held actions, the cubic speed map,
+    near-goal starts, the emergency brake, a state-dependent std."""
+    cfg = load_config("smoke", [
+        f"logger.log_dir={tmp_path}", "env.action_repeat=2", "env.action_exponents=[3.0,1.0]",
+        "env.near_goal_starts=0.5", "env.emergency_brake=true", "env.goal_features=true",
+        "model.state_dependent_std=true", "collector.frames_per_batch=2048",
+        "collector.total_frames=4096",
+    ])
+    final = train(cfg)
+    ckpt = torch.load(final, weights_only=False)
+    assert ckpt["frames"] == 4096
+    # Frames are steps of dt: 2 batches of 16 envs x 64 actions held 2 steps each.
+    assert [int(v) for k, v in ckpt["env"].items() if k.endswith("frames")] == [4096]
+    rows = evaluate(str(final), episodes=4, levels=(0.9,))
+    assert rows[0]["collision"] == 0.0  # the brake stops every colliding step
+    assert 0 < rows[0]["mean_length"] <= cfg.env.max_steps
+
+
+def test_action_repeat_must_divide_the_batch():
+    with pytest.raises(ValueError, match=r"multiple of env.num_envs x env.action_repeat = 48"):
+        load_config("smoke", ["env.action_repeat=3"])

@@ -64,6 +64,17 @@ class LotConfig:
     start_candidates: int = 16  # uniform start poses tried per env per reset
     start_pool_size: int = 4096  # valid poses drawn once, used when all candidates fail
     pool_seed: int = 0
+    # A training aid, off by default (the paper's starts are uniform over the lot): the
+    # probability that a reset's start is drawn near the goal instead, the rear axle up to
+    # near_goal_reach m back along the slot axis from the goal pose, up to near_goal_lateral m
+    # to either side and near_goal_heading rad off the slot heading; near_goal_candidates
+    # such poses are tried (the first that touches no parked car or wall is taken), and the
+    # uniform start is kept when none fits.
+    near_goal_starts: float = 0.0
+    near_goal_reach: float = 6.0
+    near_goal_lateral: float = 1.0
+    near_goal_heading: float = 0.6
+    near_goal_candidates: int = 8
 
     def __post_init__(self) -> None:
         for name in ("slot_width", "slot_length", "lane_width", "car_width", "car_length",
@@ -83,6 +94,14 @@ class LotConfig:
                  self.start_candidates)
         _require(self.start_pool_size >= 1, "LotConfig.start_pool_size", ">= 1",
                  self.start_pool_size)
+        _require(0.0 <= self.near_goal_starts <= 1.0, "LotConfig.near_goal_starts", "in [0, 1]",
+                 self.near_goal_starts)
+        for name in ("near_goal_reach", "near_goal_lateral", "near_goal_heading"):
+            value = getattr(self, name)
+            _require(math.isfinite(value) and value >= 0, f"LotConfig.{name}", "finite, >= 0",
+                     value)
+        _require(isinstance(self.near_goal_candidates, int) and self.near_goal_candidates >= 1,
+                 "LotConfig.near_goal_candidates", "an int >= 1", self.near_goal_candidates)
 
     @property
     def num_slots(self) -> int:
@@ -132,12 +151,22 @@ class ParkingConfig:
     lot: LotConfig = field(default_factory=LotConfig)
     lidar: LidarConfig = field(default_factory=LidarConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
-    max_steps: int = 1000  # truncation
+    max_steps: int = 1000  # truncation, in steps of vehicle.dt
     occupancy: float = 0.0  # initial obstacle occupancy in [0, 1]
+    # Steps of vehicle.dt that one action is held for (1: the paper, a new action every
+    # 0.1 s). With k > 1 one env step advances up to k physics steps, stops early at the one
+    # that terminates or truncates, and returns the sum of their rewards.
+    action_repeat: int = 1
+    # A safety layer under the policy, off by default (the paper has none; its "future work"
+    # names one): a step whose new pose would touch a parked car or a wall is not taken, the
+    # car stays where it is with speed 0, so no collision can happen.
+    emergency_brake: bool = False
 
     def __post_init__(self) -> None:
         _require(isinstance(self.max_steps, int) and self.max_steps >= 1,
                  "ParkingConfig.max_steps", "an int >= 1", self.max_steps)
+        _require(isinstance(self.action_repeat, int) and self.action_repeat >= 1,
+                 "ParkingConfig.action_repeat", "an int >= 1", self.action_repeat)
         check_occupancy(self.occupancy, "ParkingConfig.occupancy")
 
 

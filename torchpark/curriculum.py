@@ -1,5 +1,6 @@
 """The paper's fixed-schedule curriculum as a TorchRL transform: occupancy rises every
-``frames_per_level`` frames (env steps summed over the batch) and stays at the last level."""
+``frames_per_level`` frames (env steps summed over the batch, each counted as
+``action_repeat`` frames: frames are steps of the vehicle's dt) and stays at the last level."""
 
 from __future__ import annotations
 
@@ -58,6 +59,10 @@ class OccupancyCurriculum(Transform):
     def occupancy(self) -> float:
         return self.levels[self.level]
 
+    def _repeat(self) -> int:
+        container = self.container
+        return container.base_env.config.action_repeat if container is not None else 1
+
     def _push(self) -> None:
         container = self.container
         if container is not None:
@@ -65,7 +70,7 @@ class OccupancyCurriculum(Transform):
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
               ) -> TensorDictBase:
-        self._frames += next_tensordict.numel()
+        self._frames += next_tensordict.numel() * self._repeat()
         self.frames.fill_(self._frames)  # an async fill from a host int: no sync
         self._push()
         return next_tensordict

@@ -19,9 +19,9 @@ from torchrl.envs import EnvBase
 from torchpark.config import ParkingConfig, check_occupancy
 from torchpark.geometry import BoxFrame, box_frame
 from torchpark.lidar import line_rotation
-from torchpark.lot import build_layout, draw_goals_and_cars, draw_start_candidates
+from torchpark.lot import build_layout, draw_goals_and_cars, draw_starts
 from torchpark.rendering import LotRenderer, frame_grid
-from torchpark.simulation import ParkingState, World, parking_step, reset_rows
+from torchpark.simulation import ParkingState, World, merge_steps, parking_step, reset_rows
 
 
 class ParkingEnv(EnvBase):
@@ -44,7 +44,9 @@ class ParkingEnv(EnvBase):
     [-max_steer, max_steer] (documented behaviour); a non-finite action raises ValueError.
     Outputs per step: observation (N, 7 + n_rays) float32; reward, done, terminated, truncated,
     success, collision (N, 1); occupancy (N, 1) float32, the occupancy the current lot was drawn
-    with. Setting :attr:`occupancy` applies to lots drawn at later resets.
+    with. Setting :attr:`occupancy` applies to lots drawn at later resets. With
+    ``config.action_repeat = k`` each step holds the action for up to k steps of ``dt``
+    (stopping at the one that ends the episode) and returns the sum of their rewards.
     """
 
     batch_locked = True
@@ -76,13 +78,17 @@ class ParkingEnv(EnvBase):
             rotation=line_rotation(cfg.lidar.n_rays, self.device),
             goal_poses=self.layout.goal_poses,
             slots_and_walls=self.layout.slots_and_walls,
+            extent=torch.tensor([self.layout.width, self.layout.height], device=self.device),
         )
         step_fn = partial(parking_step, world=self._world, cfg=cfg)
         reset_fn = partial(reset_rows, world=self._world, cfg=cfg)
+        merge_fn = merge_steps
         if compile_step:
-            step_fn = torch.compile(step_fn, fullgraph=True, **(compile_kwargs or {}))
-            reset_fn = torch.compile(reset_fn, fullgraph=True, **(compile_kwargs or {}))
-        self._step_fn, self._reset_fn = step_fn, reset_fn
+            step_fn, reset_fn, merge_fn = (
+                torch.compile(f, fullgraph=True, **(compile_kwargs or {}))
+                for f in (step_fn, reset_fn, merge_fn)
+            )
+        self._step_fn, self._reset_fn, self._merge_fn = step_fn, reset_fn, merge_fn
         self._make_specs()
         self._generator = torch.Generator(device=self.device)
         self._set_seed(seed)
@@ -148,6 +154,18 @@ class ParkingEnv(EnvBase):
         )
         self._observation = torch.zeros(n, self.obs_dim, device=dev)
 
+    def randomize_step_counts(self) -> None:
+        """Set every env's step count to a uniform draw in [0, max_steps), from the env's
+        generator, so the current episodes end at spread-out times.
+
+        For training: after a full reset all N episodes would otherwise time out together,
+        and a batch of a few steps from each env would be one time slice of synchronised
+        episodes (e.g. only their first steps), again at every timeout.
+        """
+        steps = torch.randint(self.config.max_steps, (self.num_envs,),
+                              generator=self._generator, device=self.device)
+        self._state = self._state._replace(steps=steps)
+
     @property
     def state(self) -> ParkingState:
         """The current per-env state (read-only view for analysis and tests)."""
@@ -192,11 +210,11 @@ class ParkingEnv(EnvBase):
         goal, occupied = draw_goals_and_cars(
             n, self.layout.num_slots, self._occupancy, self._generator, dev
         )
-        candidates, fallback = draw_start_candidates(n, self.layout, self.config.lot,
-                                                     self._generator)
+        start = draw_starts(self.layout.goal_poses[goal], self.layout, self.config.lot,
+                            self._generator)
         occupancy = torch.full((n,), self._occupancy, device=dev)
         self._state, self._observation = self._reset_fn(
-            self._state, self._observation, mask, goal, occupied, occupancy, candidates, fallback
+            self._state, self._observation, mask, goal, occupied, occupancy, start
         )
         no = torch.zeros(n, 1, dtype=torch.bool, device=dev)
         return TensorDict(
@@ -218,6 +236,8 @@ class ParkingEnv(EnvBase):
         state, out, finite = self._step_fn(self._state, action)
         if self.validate_actions and not bool(finite):  # before the state is kept
             raise ValueError("action must be finite (no NaN or inf); got a non-finite value")
+        for _ in range(self.config.action_repeat - 1):  # the held action's further dt steps
+            state, out = self._merge_fn(state, out, *self._step_fn(state, action)[:2])
         self._state, self._observation = state, out.observation
         return TensorDict(
             {**out._asdict(), "occupancy": self._state.occupancy[:, None]},

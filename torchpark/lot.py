@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -206,33 +207,76 @@ def draw_goals_and_cars(num_envs: int, num_slots: int, occupancy: float,
     return goal, rank < parked
 
 
-def draw_start_candidates(num_envs: int, layout: LotLayout, lot: LotConfig,
-                          generator: torch.Generator) -> tuple[Tensor, Tensor]:
-    """Random inputs of :func:`choose_start`: ``lot.start_candidates`` uniform poses per env
-    (N, K, 3) and one pose (N, 3) drawn from the pre-drawn valid pool."""
-    device = layout.slots.device
-    pick = torch.randint(layout.start_pool.shape[0], (num_envs,), generator=generator,
-                         device=device)
-    candidates = uniform_poses(layout, (num_envs, lot.start_candidates), generator)
-    return candidates, layout.start_pool[pick]
+class StartDraw(NamedTuple):
+    """Random inputs of :func:`choose_start` for N envs: ``uniform`` (N, K, 3) poses uniform
+    over the lot, ``fallback`` (N, 3) one pose from the pre-drawn valid pool, ``near`` (N, J, 3)
+    poses near each env's goal and ``use_near`` (N,) bool, whether to prefer them (J = 0 and
+    all False unless ``LotConfig.near_goal_starts`` > 0)."""
+
+    uniform: Tensor
+    fallback: Tensor
+    near: Tensor
+    use_near: Tensor
 
 
-def choose_start(candidates: Tensor, fallback: Tensor, blocked: BoxFrame,
-                 vehicle: VehicleConfig) -> Tensor:
-    """Start poses (N, 3): each env's first valid candidate (N, K, 3), else its fallback (N, 3).
+def near_goal_poses(goal: Tensor, count: int, lot: LotConfig, generator: torch.Generator
+                    ) -> Tensor:
+    """``count`` rear-axle poses (N, count, 3) near each goal pose (N, 3): up to
+    ``lot.near_goal_reach`` m back along the slot axis, up to ``lot.near_goal_lateral`` m to
+    either side and up to ``lot.near_goal_heading`` rad off the slot heading, uniformly."""
+    u = torch.rand(goal.shape[0], count, 3, generator=generator, device=goal.device)
+    back = u[..., 0] * lot.near_goal_reach
+    side = (2.0 * u[..., 1] - 1.0) * lot.near_goal_lateral
+    turn = (2.0 * u[..., 2] - 1.0) * lot.near_goal_heading
+    gx, gy, alpha = (t[:, None] for t in goal.unbind(-1))
+    c, s = torch.cos(alpha), torch.sin(alpha)
+    return torch.stack((gx - back * c - side * s, gy - back * s + side * c,
+                        wrap_angle(alpha + turn)), dim=-1)
 
-    The fallback comes from the pool of valid poses, so the result is always valid; the work
-    is bounded by N x K x B box tests. Conditioned on one candidate being valid, the pose is
-    uniform over the valid poses.
-    """
-    if candidates.shape[1] == 0:
-        return fallback
-    valid = start_pose_valid(candidates, blocked, vehicle)
+
+def draw_starts(goal: Tensor, layout: LotLayout, lot: LotConfig, generator: torch.Generator
+                ) -> StartDraw:
+    """The random draws of one reset's start poses for goal poses (N, 3)."""
+    n, device = goal.shape[0], goal.device
+    pick = torch.randint(layout.start_pool.shape[0], (n,), generator=generator, device=device)
+    uniform = uniform_poses(layout, (n, lot.start_candidates), generator)
+    if lot.near_goal_starts > 0:
+        near = near_goal_poses(goal, lot.near_goal_candidates, lot, generator)
+        use_near = torch.rand(n, generator=generator, device=device) < lot.near_goal_starts
+    else:
+        near = goal.new_zeros(n, 0, 3)
+        use_near = torch.zeros(n, dtype=torch.bool, device=device)
+    return StartDraw(uniform, layout.start_pool[pick], near, use_near)
+
+
+def _first_valid(candidates: Tensor, valid: Tensor) -> tuple[Tensor, Tensor]:
+    """Each row's first valid candidate (N, 3) of (N, K, 3) and whether it has one (N, 1)."""
     k = candidates.shape[1]
-    # Index of the first valid candidate (k - 1 when none is; the fallback is taken then). A
-    # masked min rather than argmax: inductor's vectorised argmax over a uint8 mask returned
-    # out-of-range indices (torch 2.13, CPU).
+    # Index of the first valid candidate (k - 1 when none is). A masked min rather than
+    # argmax: inductor's vectorised argmax over a uint8 mask returned out-of-range indices
+    # (torch 2.13, CPU).
     index = torch.arange(k, device=candidates.device)
     first = torch.where(valid, index, k - 1).amin(dim=1)
     chosen = candidates.gather(1, first[:, None, None].expand(-1, 1, 3))[:, 0]
-    return torch.where(valid.any(dim=1, keepdim=True), chosen, fallback)
+    return chosen, valid.any(dim=1, keepdim=True)
+
+
+def choose_start(draw: StartDraw, blocked: BoxFrame, near_free: Tensor,
+                 vehicle: VehicleConfig) -> Tensor:
+    """Start poses (N, 3): where ``draw.use_near`` is set and a near-goal pose is free
+    (``near_free`` (N, J) bool, from the caller, who knows the parked cars), the first such;
+    else each env's first valid uniform candidate, else its fallback.
+
+    The fallback comes from the pool of valid poses, so the result is always valid; the work
+    is bounded by N x (K + J) x B box tests. Conditioned on one uniform candidate being valid,
+    the uniform pose is uniform over the valid poses.
+    """
+    start = draw.fallback
+    if draw.uniform.shape[1] > 0:
+        chosen, found = _first_valid(draw.uniform, start_pose_valid(draw.uniform, blocked,
+                                                                    vehicle))
+        start = torch.where(found, chosen, start)
+    if draw.near.shape[1] > 0:
+        chosen, found = _first_valid(draw.near, near_free)
+        start = torch.where(found & draw.use_near[:, None], chosen, start)
+    return start

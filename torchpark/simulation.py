@@ -15,7 +15,7 @@ from torch import Tensor
 from torchpark.config import ParkingConfig
 from torchpark.geometry import BoxFrame, frames_separation
 from torchpark.lidar import lidar_scan
-from torchpark.lot import choose_start
+from torchpark.lot import StartDraw, choose_start
 from torchpark.reward import is_success, parking_cost, parking_reward
 from torchpark.vehicle import bicycle_step, clamp_action, vehicle_frame
 
@@ -25,12 +25,14 @@ _ABSENT_GAP = 1e4  # metres
 class World(NamedTuple):
     """Constants shared by every env. obstacles: frame with fields (M,) = S parked-car boxes
     then 4 walls; rotation: LIDAR line rotation (2, 2 * lines); goal_poses: (S, 3) rear-axle
-    goal pose of each slot; slots_and_walls: frame (S + 4,) that a start pose must not touch."""
+    goal pose of each slot; slots_and_walls: frame (S + 4,) that a start pose must not touch;
+    extent: (2,) the lot's width and height, m."""
 
     obstacles: BoxFrame
     rotation: Tensor
     goal_poses: Tensor
     slots_and_walls: BoxFrame
+    extent: Tensor
 
 
 class ParkingState(NamedTuple):
@@ -64,6 +66,16 @@ class StepResult(NamedTuple):
     collision: Tensor
 
 
+def touches_obstacle(ego: BoxFrame, world: World, present: Tensor) -> Tensor:
+    """Whether vehicle boxes (frame with fields [...]) touch a present obstacle: bool [...].
+
+    present: float [..., M] broadcastable, 1 where the obstacle exists.
+    """
+    gap = frames_separation(BoxFrame(*(t[..., None] for t in ego)), world.obstacles)
+    # An absent obstacle's gap is raised by _ABSENT_GAP, far more than any overlap depth.
+    return (gap + (1.0 - present) * _ABSENT_GAP).amin(-1) <= 0.0
+
+
 def observe(state: ParkingState, world: World, cfg: ParkingConfig) -> tuple[Tensor, Tensor, Tensor]:
     """Observation (N, 7 + n_rays), collision (N,) bool and parking cost C (N,) of a state.
 
@@ -71,9 +83,7 @@ def observe(state: ParkingState, world: World, cfg: ParkingConfig) -> tuple[Tens
     dx, dy = goal - rear axle (world frame, m) and alpha the goal heading.
     """
     ego = vehicle_frame(state.pose, cfg.vehicle)
-    gap = frames_separation(BoxFrame(*(t[:, None] for t in ego)), world.obstacles)
-    # An absent obstacle's gap is raised by _ABSENT_GAP, far more than any overlap depth.
-    collision = (gap + (1.0 - state.present) * _ABSENT_GAP).amin(-1) <= 0.0
+    collision = touches_obstacle(ego, world, state.present)
     lidar = lidar_scan(ego.cx, ego.cy, ego.cos, ego.sin, world.rotation, world.obstacles,
                        state.present, cfg.lidar.n_rays, cfg.lidar.max_range)
     dx = state.goal[:, 0] - state.pose[:, 0]
@@ -95,9 +105,12 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
     step, where it costs nothing, so the caller can reject the step before keeping its state.
     """
     v, delta = clamp_action(action, cfg.vehicle)
-    state = state._replace(
-        pose=bicycle_step(state.pose, v, delta, cfg.vehicle), speed=v, steps=state.steps + 1
-    )
+    pose = bicycle_step(state.pose, v, delta, cfg.vehicle)
+    if cfg.emergency_brake:  # keep the (collision-free) pose where the new one would collide
+        blocked = touches_obstacle(vehicle_frame(pose, cfg.vehicle), world, state.present)
+        pose = torch.where(blocked[:, None], state.pose, pose)
+        v = torch.where(blocked, 0.0, v)
+    state = state._replace(pose=pose, speed=v, steps=state.steps + 1)
     observation, collision, cost = observe(state, world, cfg)
     success = is_success(cost, cfg.reward)
     reward = parking_reward(cost, collision, success, cfg.reward)
@@ -107,24 +120,56 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
     return state, StepResult(observation, *(t[:, None] for t in column)), action.isfinite().all()
 
 
+def merge_steps(state: ParkingState, out: StepResult, new_state: ParkingState,
+                new_out: StepResult) -> tuple[ParkingState, StepResult]:
+    """Append one more physics step (``new_*``, taken from ``state``) to a held action's
+    steps so far: rows already done keep their state and outputs; the others take the new
+    ones, with the rewards summed."""
+    ended = out.done  # (N, 1)
+    merged_state = ParkingState(*(
+        torch.where(ended.view(-1, *([1] * (new.dim() - 1))), old, new)
+        for new, old in zip(new_state, state, strict=True)
+    ))
+    reward = out.reward + torch.where(ended, 0.0, new_out.reward)
+    merged = StepResult(*(torch.where(ended, old, new) for new, old in zip(new_out, out,
+                                                                          strict=True)))
+    return merged_state, merged._replace(reward=reward)
+
+
+def near_starts_free(near: Tensor, goal: Tensor, present: Tensor, world: World,
+                     cfg: ParkingConfig) -> Tensor:
+    """Whether near-goal start poses (N, J, 3) are usable, bool (N, J): rear axle inside the
+    lot, vehicle box touching no present obstacle (``present`` (N, M)), success test not met
+    at rest against ``goal`` (N, 3)."""
+    free = ~touches_obstacle(vehicle_frame(near, cfg.vehicle), world, present[:, None, :])
+    inside = ((near[..., :2] > 0.0) & (near[..., :2] < world.extent)).all(-1)
+    g = goal[:, None, :]
+    cost = parking_cost(g[..., 0] - near[..., 0], g[..., 1] - near[..., 1], near[..., 2],
+                        g[..., 2], torch.zeros_like(near[..., 0]), cfg.reward)
+    return free & inside & ~is_success(cost, cfg.reward)
+
+
 def reset_rows(state: ParkingState, observation: Tensor, mask: Tensor, goal_slot: Tensor,
-               occupied: Tensor, occupancy: Tensor, candidates: Tensor, fallback: Tensor,
-               world: World, cfg: ParkingConfig) -> tuple[ParkingState, Tensor]:
+               occupied: Tensor, occupancy: Tensor, start: StartDraw, world: World,
+               cfg: ParkingConfig) -> tuple[ParkingState, Tensor]:
     """New lots for the rows where ``mask`` (N,) is set; the other rows are returned untouched.
 
     goal_slot (N,) int64, occupied (N, S) bool, occupancy (N,) float32: the drawn lot;
-    candidates (N, K, 3) and fallback (N, 3): start poses from ``lot.draw_start_candidates``.
+    start: the start poses' random draws (``lot.draw_starts``).
     Every row is computed and muxed with ``torch.where``: static shapes and no host sync, so
     a partial reset compiles into the same graph as a full one.
     """
     walls = torch.ones(occupied.shape[0], world.obstacles.cx.shape[0] - occupied.shape[1],
                        device=occupied.device)
+    present = torch.cat((occupied.to(walls.dtype), walls), dim=-1)
+    goal = world.goal_poses[goal_slot]
+    near_free = near_starts_free(start.near, goal, present, world, cfg)
     fresh = ParkingState(
-        pose=choose_start(candidates, fallback, world.slots_and_walls, cfg.vehicle),
+        pose=choose_start(start, world.slots_and_walls, near_free, cfg.vehicle),
         speed=torch.zeros_like(state.speed),
         goal_slot=goal_slot,
-        goal=world.goal_poses[goal_slot],
-        present=torch.cat((occupied.to(walls.dtype), walls), dim=-1),
+        goal=goal,
+        present=present,
         steps=torch.zeros_like(state.steps),
         occupancy=occupancy,
     )

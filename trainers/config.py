@@ -24,6 +24,18 @@ class EnvConfig:
     goal_features: bool = False
     # The training env's success threshold on C (evaluation always uses the paper's 4e-4).
     success_threshold: float = 4e-4
+    # The probability that a training episode starts near its goal (LotConfig.near_goal_starts;
+    # evaluation always draws the paper's uniform starts).
+    near_goal_starts: float = 0.0
+    # None: the policy commands (v, delta) directly (the paper). A list: it acts in [-1, 1]
+    # and the env receives (5 m/s, 0.785 rad) * sign(u) |u| ** exponents
+    # (torchpark.PowerActionMap), e.g. [3, 1] for fine speed control near standstill.
+    action_exponents: list[float] | None = None
+    # Steps of dt (0.1 s) each action is held for (ParkingConfig.action_repeat; 1: the paper).
+    # Frames stay steps of dt: a batch of N envs x T actions is N x T x action_repeat frames.
+    action_repeat: int = 1
+    # ParkingConfig.emergency_brake: a step that would collide is not taken (speed 0).
+    emergency_brake: bool = False
 
 
 @dataclass
@@ -60,6 +72,8 @@ class OptimConfig:
 class ModelConfig:
     hidden: list[int] = field(default_factory=lambda: [64, 64])
     init_log_std: float = 0.0
+    # False: one learned log-std per action (SB3, the paper); True: the actor outputs it.
+    state_dependent_std: bool = False
 
 
 @dataclass
@@ -126,15 +140,17 @@ def load_config(preset: str, overrides: list[str] | None = None) -> TrainConfig:
 
 
 def _check(cfg: TrainConfig) -> None:
-    n, batch = cfg.env.num_envs, cfg.collector.frames_per_batch
+    n, batch, k = cfg.env.num_envs, cfg.collector.frames_per_batch, cfg.env.action_repeat
     if n < 1:
         raise ValueError(f"env.num_envs must be >= 1, got {n}")
-    if batch < n or batch % n:
-        raise ValueError(f"collector.frames_per_batch must be a multiple of env.num_envs={n}, "
-                         f"got {batch}")
-    if not 1 <= cfg.loss.mini_batch_size <= batch:
-        raise ValueError(f"loss.mini_batch_size must be in [1, frames_per_batch={batch}], "
-                         f"got {cfg.loss.mini_batch_size}")
+    if k < 1:
+        raise ValueError(f"env.action_repeat must be >= 1, got {k}")
+    if batch < n * k or batch % (n * k):
+        raise ValueError(f"collector.frames_per_batch must be a multiple of env.num_envs x "
+                         f"env.action_repeat = {n * k}, got {batch}")
+    if not 1 <= cfg.loss.mini_batch_size <= batch // k:
+        raise ValueError(f"loss.mini_batch_size must be in [1, frames_per_batch / action_repeat"
+                         f" = {batch // k}], got {cfg.loss.mini_batch_size}")
 
 
 __all__ = ["PRESETS", "TrainConfig", "load_config", "replace"]

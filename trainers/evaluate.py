@@ -51,7 +51,9 @@ def make_eval_env(cfg: TrainConfig, checkpoint: dict, occupancy: float, num_envs
     """``num_envs`` lots at ``occupancy`` with the paper's success test, feeding the policy
     the checkpoint's (frozen) normalisation."""
     base = ParkingEnv(num_envs, device=cfg.env.device, seed=seed,
-                      config=ParkingConfig(max_steps=cfg.env.max_steps))
+                      config=ParkingConfig(max_steps=cfg.env.max_steps,
+                                           action_repeat=cfg.env.action_repeat,
+                                           emergency_brake=cfg.env.emergency_brake))
     base.occupancy = occupancy
     inputs = policy_input(cfg)
     env = TransformedEnv(base, Compose(*inputs))
@@ -73,9 +75,10 @@ FREEZE_STEPS = 100
 class Episodes:
     """The first episode of each of N lots. Bool/float tensors (N,) unless stated.
 
-    poses: (T + 1, N, 3) rear-axle poses from the reset on (rows repeat their last pose
-    after their end); final: (N, 7) the last observation's [dx, dy, cos psi, sin psi, v,
-    cos alpha, sin alpha]; length: steps taken.
+    poses: (T + 1, N, 3) rear-axle poses after each env step from the reset on (rows repeat
+    their last pose after their end); final: (N, 7) the last observation's [dx, dy, cos psi,
+    sin psi, v, cos alpha, sin alpha]; length: env steps taken (an index into ``poses``);
+    steps: steps of dt taken (``repeat`` per env step when the env holds its actions).
     """
 
     success: torch.Tensor
@@ -85,6 +88,8 @@ class Episodes:
     final: torch.Tensor
     poses: torch.Tensor
     goal_slot: torch.Tensor
+    steps: torch.Tensor
+    repeat: int = 1
 
     @property
     def position_error(self) -> torch.Tensor:
@@ -107,7 +112,7 @@ class Episodes:
     def freezing(self) -> torch.Tensor:
         end = self.length.long()
         rows = torch.arange(end.shape[0])
-        before = self.poses[(end - FREEZE_STEPS).clamp(min=0), rows, :2]
+        before = self.poses[(end - FREEZE_STEPS // self.repeat).clamp(min=0), rows, :2]
         moved = (self.poses[end, rows, :2] - before).norm(dim=-1)
         return self.timeout & (moved < FREEZE_DISTANCE)
 
@@ -122,6 +127,7 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int) -> Episodes:
     outcome = {key: torch.zeros(n, dtype=torch.bool)
                for key in ("success", "collision", "truncated")}
     length = torch.zeros(n)
+    steps = torch.zeros(n)
     td = env.reset()
     poses = [base.state.pose.cpu()]
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
@@ -133,13 +139,15 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int) -> Episodes:
             for key in outcome:
                 outcome[key] |= first & nxt[key][:, 0].cpu()
             length[first] = step
+            steps[first] = base.state.steps.cpu()[first].float()
             poses.append(torch.where(ended[:, None], poses[-1], base.state.pose.cpu()))
             ended |= first
             if bool(ended.all()):
                 break
             td = step_mdp(td)
     return Episodes(outcome["success"], outcome["collision"], outcome["truncated"], length,
-                    final, torch.stack(poses), base.state.goal_slot.cpu())
+                    final, torch.stack(poses), base.state.goal_slot.cpu(), steps,
+                    base.config.action_repeat)
 
 
 def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
@@ -155,7 +163,7 @@ def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
         "timeout": run.timeout.float().mean().item(),
         "grazing": run.grazing.float().mean().item(),
         "freezing": run.freezing.float().mean().item(),
-        "mean_length": run.length.mean().item(),
+        "mean_length": run.steps.mean().item(),
         "pos_err_median_m": position.median().item(),
         "pos_err_p90_m": position.quantile(0.9).item(),
         "heading_err_median_deg": heading.median().item(),

@@ -32,7 +32,15 @@ from torchrl.objectives.value import GAE
 from torchrl.record.loggers import TensorboardLogger
 from tqdm import tqdm
 
-from torchpark import OccupancyCurriculum, ParkingConfig, ParkingEnv, RewardConfig
+from torchpark import (
+    LotConfig,
+    OccupancyCurriculum,
+    ParkingConfig,
+    ParkingEnv,
+    RewardConfig,
+    VehicleConfig,
+)
+from torchpark.actions import PowerActionMap
 from torchpark.features import GoalFrameFeatures
 from trainers.config import TrainConfig, load_config
 from trainers.models import NORMALISED, make_ppo_models
@@ -44,8 +52,10 @@ _MODEL_SECTIONS = ("env", "model", "curriculum")
 def make_env(cfg: TrainConfig) -> TransformedEnv:
     """The training env: ParkingEnv, episode statistics, the curriculum, observation norm
     (written to ``NORMALISED``)."""
-    config = ParkingConfig(max_steps=cfg.env.max_steps,
-                           reward=RewardConfig(success_threshold=cfg.env.success_threshold))
+    config = ParkingConfig(max_steps=cfg.env.max_steps, action_repeat=cfg.env.action_repeat,
+                           emergency_brake=cfg.env.emergency_brake,
+                           reward=RewardConfig(success_threshold=cfg.env.success_threshold),
+                           lot=LotConfig(near_goal_starts=cfg.env.near_goal_starts))
     base = ParkingEnv(cfg.env.num_envs, device=cfg.env.device, seed=cfg.seed, config=config,
                       compile_step=cfg.env.compile_step)
     return TransformedEnv(base, Compose(
@@ -58,7 +68,8 @@ def make_env(cfg: TrainConfig) -> TransformedEnv:
 
 
 def policy_input(cfg: TrainConfig) -> list[Transform]:
-    """The transforms from the raw observation to the networks' input ``NORMALISED``.
+    """The transforms between the env and the networks: the optional action map, then from
+    the raw observation to the networks' input ``NORMALISED`` (last).
 
     Normalised into its own key: the networks read it, while the raw observation stays in the
     data for evaluation and analysis (final position and heading errors). reduce_batch_dims:
@@ -66,6 +77,10 @@ def policy_input(cfg: TrainConfig) -> list[Transform]:
     """
     source = ["observation"]
     transforms: list[Transform] = []
+    if cfg.env.action_exponents is not None:
+        vehicle = VehicleConfig()
+        transforms.append(PowerActionMap([vehicle.max_speed, vehicle.max_steer],
+                                         cfg.env.action_exponents))
     if cfg.env.goal_features:
         transforms.append(GoalFrameFeatures("observation", "observation_policy"))
         source = ["observation_policy"]
@@ -73,15 +88,17 @@ def policy_input(cfg: TrainConfig) -> list[Transform]:
                                    reduce_batch_dims=True)]
 
 
-def episode_stats(batch: TensorDict) -> dict[str, float]:
-    """Means over the episodes that ended in this batch (empty dict when none did)."""
+def episode_stats(batch: TensorDict, repeat: int = 1) -> dict[str, float]:
+    """Means over the episodes that ended in this batch (empty dict when none did). Lengths
+    in steps of dt: env steps x ``repeat`` (the action repeat; the last one may be cut short
+    by the episode's end)."""
     nxt = batch["next"]
     done = nxt["done"][..., 0]
     if not bool(done.any()):
         return {}
     return {
         "episode/reward": nxt["episode_reward"][done].mean().item(),
-        "episode/length": nxt["step_count"][done].float().mean().item(),
+        "episode/length": nxt["step_count"][done].float().mean().item() * repeat,
         "episode/success_rate": nxt["success"][done].float().mean().item(),
         "episode/collision_rate": nxt["collision"][done].float().mean().item(),
         "episode/timeout_rate": nxt["truncated"][done].float().mean().item(),
@@ -130,12 +147,16 @@ def train(cfg: TrainConfig, resume: str | None = None) -> Path:
         env.load_state_dict(checkpoint["env"])
         frames = checkpoint["frames"]
     remaining = cfg.collector.total_frames - frames
+    repeat = cfg.env.action_repeat  # frames per env step
     if remaining < cfg.collector.frames_per_batch:
         raise ValueError(f"collector.total_frames={cfg.collector.total_frames} leaves less than "
                          f"one batch after the checkpoint's {frames} frames")
 
-    collector = Collector(env, actor, frames_per_batch=cfg.collector.frames_per_batch,
-                          total_frames=remaining, device=cfg.env.device)
+    # The collector counts env steps; frames are steps of dt.
+    collector = Collector(env, actor, frames_per_batch=cfg.collector.frames_per_batch // repeat,
+                          total_frames=remaining // repeat, device=cfg.env.device)
+    # After the collector's reset: spread the first timeouts over [1, max_steps] steps.
+    env.base_env.randomize_step_counts()
     logger = TensorboardLogger(exp_name=cfg.logger.exp_name, log_dir=cfg.logger.log_dir)
     curriculum = env.transform[3]
 
@@ -152,7 +173,8 @@ def train(cfg: TrainConfig, resume: str | None = None) -> Path:
     collect_start = time.perf_counter()
     for batch in collector:
         collect_time = time.perf_counter() - collect_start
-        frames += batch.numel()
+        batch_frames = batch.numel() * repeat
+        frames += batch_frames
         train_start = time.perf_counter()
         with torch.no_grad():
             advantage(batch)
@@ -171,19 +193,19 @@ def train(cfg: TrainConfig, resume: str | None = None) -> Path:
         train_time = time.perf_counter() - train_start
 
         scalars = {
-            **episode_stats(batch),
+            **episode_stats(batch, repeat),
             "curriculum/occupancy": curriculum.occupancy, "curriculum/phase": curriculum.phase,
             "loss/objective": losses["loss_objective"].item(),
             "loss/critic": losses["loss_critic"].item(),
             "loss/kl_approx": losses["kl_approx"].item(),
             "loss/clip_fraction": losses["clip_fraction"].item(),
-            "time/collect_fps": batch.numel() / collect_time,
-            "time/train_fps": batch.numel() / train_time,
-            "time/fps": batch.numel() / (collect_time + train_time),
+            "time/collect_fps": batch_frames / collect_time,
+            "time/train_fps": batch_frames / train_time,
+            "time/fps": batch_frames / (collect_time + train_time),
         }
         for key, value in scalars.items():
             logger.log_scalar(key, value, step=frames)
-        bar.update(batch.numel())
+        bar.update(batch_frames)
         bar.set_postfix(phase=curriculum.phase,
                         success=f"{scalars.get('episode/success_rate', float('nan')):.2f}")
         if frames >= next_checkpoint:
