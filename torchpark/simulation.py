@@ -76,14 +76,13 @@ def touches_obstacle(ego: BoxFrame, world: World, present: Tensor) -> Tensor:
     return (gap + (1.0 - present) * _ABSENT_GAP).amin(-1) <= 0.0
 
 
-def observe(state: ParkingState, world: World, cfg: ParkingConfig) -> tuple[Tensor, Tensor, Tensor]:
-    """Observation (N, 7 + n_rays), collision (N,) bool and parking cost C (N,) of a state.
+def observe(state: ParkingState, world: World, cfg: ParkingConfig) -> tuple[Tensor, Tensor]:
+    """Observation (N, 7 + n_rays) and parking cost C (N,) of a state.
 
     Observation: [dx, dy, cos psi, sin psi, v, cos alpha, sin alpha, lidar / max_range], with
     dx, dy = goal - rear axle (world frame, m) and alpha the goal heading.
     """
     ego = vehicle_frame(state.pose, cfg.vehicle)
-    collision = touches_obstacle(ego, world, state.present)
     lidar = lidar_scan(ego.cx, ego.cy, ego.cos, ego.sin, world.rotation, world.obstacles,
                        state.present, cfg.lidar.n_rays, cfg.lidar.max_range)
     dx = state.goal[:, 0] - state.pose[:, 0]
@@ -94,7 +93,16 @@ def observe(state: ParkingState, world: World, cfg: ParkingConfig) -> tuple[Tens
     )
     observation = torch.cat((nav, lidar * (1.0 / cfg.lidar.max_range)), dim=-1)
     cost = parking_cost(dx, dy, state.pose[:, 2], alpha, state.speed, cfg.reward)
-    return observation, collision, cost
+    return observation, cost
+
+
+def _mux_rows(mask: Tensor, new: tuple, old: tuple) -> tuple:
+    """Field by field, ``new`` where ``mask`` (N,) is set, else ``old``: NamedTuples of
+    [N, ...] tensors."""
+    return type(old)(*(
+        torch.where(mask.view(-1, *([1] * (a.dim() - 1))), a, b)
+        for a, b in zip(new, old, strict=True)
+    ))
 
 
 def parking_step(state: ParkingState, action: Tensor, world: World, cfg: ParkingConfig
@@ -106,12 +114,15 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
     """
     v, delta = clamp_action(action, cfg.vehicle)
     pose = bicycle_step(state.pose, v, delta, cfg.vehicle)
-    if cfg.emergency_brake:  # keep the (collision-free) pose where the new one would collide
-        blocked = touches_obstacle(vehicle_frame(pose, cfg.vehicle), world, state.present)
-        pose = torch.where(blocked[:, None], state.pose, pose)
-        v = torch.where(blocked, 0.0, v)
+    collision = touches_obstacle(vehicle_frame(pose, cfg.vehicle), world, state.present)
+    if cfg.emergency_brake:
+        # Keep the old pose where the new one would collide. The old pose is collision-free
+        # (a start is, and so is every pose a braked step keeps), so nothing collides.
+        pose = torch.where(collision[:, None], state.pose, pose)
+        v = torch.where(collision, 0.0, v)
+        collision = torch.zeros_like(collision)
     state = state._replace(pose=pose, speed=v, steps=state.steps + 1)
-    observation, collision, cost = observe(state, world, cfg)
+    observation, cost = observe(state, world, cfg)
     success = is_success(cost, cfg.reward)
     reward = parking_reward(cost, collision, success, cfg.reward)
     terminated = collision | success
@@ -125,15 +136,10 @@ def merge_steps(state: ParkingState, out: StepResult, new_state: ParkingState,
     """Append one more physics step (``new_*``, taken from ``state``) to a held action's
     steps so far: rows already done keep their state and outputs; the others take the new
     ones, with the rewards summed."""
-    ended = out.done  # (N, 1)
-    merged_state = ParkingState(*(
-        torch.where(ended.view(-1, *([1] * (new.dim() - 1))), old, new)
-        for new, old in zip(new_state, state, strict=True)
-    ))
-    reward = out.reward + torch.where(ended, 0.0, new_out.reward)
-    merged = StepResult(*(torch.where(ended, old, new) for new, old in zip(new_out, out,
-                                                                          strict=True)))
-    return merged_state, merged._replace(reward=reward)
+    live = ~out.done[:, 0]
+    merged = _mux_rows(live, new_out, out)
+    return _mux_rows(live, new_state, state), merged._replace(
+        reward=out.reward + torch.where(live[:, None], new_out.reward, 0.0))
 
 
 def near_starts_free(near: Tensor, goal: Tensor, present: Tensor, world: World,
@@ -173,9 +179,6 @@ def reset_rows(state: ParkingState, observation: Tensor, mask: Tensor, goal_slot
         steps=torch.zeros_like(state.steps),
         occupancy=occupancy,
     )
-    state = ParkingState(*(
-        torch.where(mask.view(-1, *([1] * (new.dim() - 1))), new, old)
-        for new, old in zip(fresh, state, strict=True)
-    ))
-    new_observation, _, _ = observe(state, world, cfg)
+    state = _mux_rows(mask, fresh, state)
+    new_observation, _ = observe(state, world, cfg)
     return state, torch.where(mask[:, None], new_observation, observation)

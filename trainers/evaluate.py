@@ -26,12 +26,13 @@ from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from torchrl.modules import ProbabilisticActor
 
-from torchpark import ParkingConfig, ParkingEnv
+from torchpark import ParkingEnv
 from torchpark.curriculum import PAPER_LEVELS
+from torchpark.features import goal_in_vehicle_frame
 from torchpark.recording import record_video
 from trainers.config import TrainConfig
 from trainers.models import NORMALISED, make_ppo_models
-from trainers.ppo import policy_input
+from trainers.ppo import parking_config, policy_input
 
 # Table 2 of the paper: success rate per curriculum phase (occupancy level).
 PAPER_SUCCESS = dict(zip(PAPER_LEVELS, (0.20, 0.52, 0.65, 0.64, 0.59, 0.62), strict=True))
@@ -51,9 +52,7 @@ def make_eval_env(cfg: TrainConfig, checkpoint: dict, occupancy: float, num_envs
     """``num_envs`` lots at ``occupancy`` with the paper's success test, feeding the policy
     the checkpoint's (frozen) normalisation."""
     base = ParkingEnv(num_envs, device=cfg.env.device, seed=seed,
-                      config=ParkingConfig(max_steps=cfg.env.max_steps,
-                                           action_repeat=cfg.env.action_repeat,
-                                           emergency_brake=cfg.env.emergency_brake))
+                      config=parking_config(cfg, training=False))
     base.occupancy = occupancy
     inputs = policy_input(cfg)
     env = TransformedEnv(base, Compose(*inputs))
@@ -99,10 +98,8 @@ class Episodes:
     @property
     def heading_error(self) -> torch.Tensor:
         """|wrap(alpha - psi)| at the end, degrees."""
-        _, _, cos_psi, sin_psi, _, cos_alpha, sin_alpha = self.final.T
-        sin_err = sin_alpha * cos_psi - cos_alpha * sin_psi
-        cos_err = cos_alpha * cos_psi + sin_alpha * sin_psi
-        return torch.atan2(sin_err, cos_err).abs() * (180.0 / math.pi)
+        goal = goal_in_vehicle_frame(self.final)
+        return torch.atan2(goal[:, 3], goal[:, 2]).abs() * (180.0 / math.pi)
 
     @property
     def grazing(self) -> torch.Tensor:

@@ -49,14 +49,24 @@ from trainers.models import NORMALISED, make_ppo_models
 _MODEL_SECTIONS = ("env", "model", "curriculum")
 
 
+def parking_config(cfg: TrainConfig, training: bool) -> ParkingConfig:
+    """The env's config for this run. What the agent is (held actions, the brake) is the same
+    in training and evaluation; the training aids (success threshold, near-goal starts) apply
+    only with ``training``, evaluation keeps the paper's."""
+    config = ParkingConfig(max_steps=cfg.env.max_steps, action_repeat=cfg.env.action_repeat,
+                           emergency_brake=cfg.env.emergency_brake)
+    if not training:
+        return config
+    return dataclasses.replace(
+        config, reward=RewardConfig(success_threshold=cfg.env.success_threshold),
+        lot=LotConfig(near_goal_starts=cfg.env.near_goal_starts))
+
+
 def make_env(cfg: TrainConfig) -> TransformedEnv:
     """The training env: ParkingEnv, episode statistics, the curriculum, observation norm
     (written to ``NORMALISED``)."""
-    config = ParkingConfig(max_steps=cfg.env.max_steps, action_repeat=cfg.env.action_repeat,
-                           emergency_brake=cfg.env.emergency_brake,
-                           reward=RewardConfig(success_threshold=cfg.env.success_threshold),
-                           lot=LotConfig(near_goal_starts=cfg.env.near_goal_starts))
-    base = ParkingEnv(cfg.env.num_envs, device=cfg.env.device, seed=cfg.seed, config=config,
+    base = ParkingEnv(cfg.env.num_envs, device=cfg.env.device, seed=cfg.seed,
+                      config=parking_config(cfg, training=True),
                       compile_step=cfg.env.compile_step)
     return TransformedEnv(base, Compose(
         InitTracker(), StepCounter(), RewardSum(),
