@@ -17,7 +17,8 @@ from trainers.ppo import main, train
 
 TAGS = {
     "episode/reward", "episode/length", "episode/success_rate", "episode/collision_rate",
-    "episode/timeout_rate", "curriculum/occupancy", "curriculum/phase", "loss/objective",
+    "episode/timeout_rate", "curriculum/occupancy", "curriculum/phase",
+    "curriculum/success_threshold", "loss/objective",
     "loss/critic", "time/fps", "time/collect_fps", "time/train_fps",
 }
 
@@ -125,18 +126,24 @@ def test_failure_modes_follow_their_definitions():
 
 def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     """Every training option off the paper's path at once: held actions, the cubic speed map,
-    near-goal starts, the emergency brake, a state-dependent std."""
+    near-goal starts, the emergency brake, a state-dependent std, the success curriculum."""
     cfg = load_config("smoke", [
         f"logger.log_dir={tmp_path}", "env.action_repeat=2", "env.action_exponents=[3.0,1.0]",
         "env.near_goal_starts=0.5", "env.emergency_brake=true", "env.goal_features=true",
         "model.state_dependent_std=true", "collector.frames_per_batch=2048",
-        "collector.total_frames=4096",
+        "collector.total_frames=4096", "curriculum.success_start=1000.0",
+        "curriculum.success_window=1024",
     ])
     final = train(cfg)
     ckpt = torch.load(final, weights_only=False)
     assert ckpt["frames"] == 4096
     # Frames are steps of dt: 2 batches of 16 envs x 64 actions held 2 steps each.
-    assert [int(v) for k, v in ckpt["env"].items() if k.endswith("frames")] == [4096]
+    assert [int(v) for k, v in ckpt["env"].items() if k.endswith("frames")] == [4096] * 2
+    # C < 1000 everywhere: each of the 4 windows succeeds and halves the threshold.
+    assert [float(v) for k, v in ckpt["env"].items() if k.endswith("threshold")] == [62.5]
+    events = EventAccumulator(str(final.parent))
+    events.Reload()
+    assert events.Scalars("curriculum/success_threshold")[-1].value == 62.5
     rows = evaluate(str(final), episodes=4, levels=(0.9,))
     assert rows[0]["collision"] == 0.0  # the brake stops every colliding step
     assert 0 < rows[0]["mean_length"] <= cfg.env.max_steps

@@ -7,7 +7,7 @@ from torchpark.config import (
     RewardConfig,
     VehicleConfig,
 )
-from torchpark.curriculum import OccupancyCurriculum
+from torchpark.curriculum import OccupancyCurriculum, SuccessCurriculum
 from torchpark.env import ParkingEnv
 from torchpark.features import GoalFrameFeatures
 from torchpark.gym_env import ENV_ID, ParkingGymEnv, ParkingVectorEnv, register
@@ -25,5 +25,6 @@ __all__ = [
     "ParkingGymEnv",
     "ParkingVectorEnv",
     "RewardConfig",
+    "SuccessCurriculum",
     "VehicleConfig",
 ]

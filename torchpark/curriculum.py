@@ -15,7 +15,46 @@ from torchpark.config import check_occupancy
 PAPER_LEVELS = (0.0, 0.2, 0.4, 0.6, 0.8, 0.9)
 
 
-class OccupancyCurriculum(Transform):
+class _Curriculum(Transform):
+    """A transform that counts frames (env steps summed over the batch, ``action_repeat``
+    frames each) in a buffer mirrored by a Python int, so that no step reads a device tensor
+    and ``state_dict``/``load_state_dict`` carry and resume the count, and that sets its
+    value in the base env (``_push``) before each reset and after a load."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.register_buffer("frames", torch.zeros((), dtype=torch.int64))
+        self._frames = 0
+
+    @property
+    def frames_seen(self) -> int:
+        """Frames stepped through this transform."""
+        return self._frames
+
+    def _count(self, next_tensordict: TensorDictBase) -> int:
+        """Add a step's frames; returns the count before them."""
+        container = self.container
+        repeat = container.base_env.config.action_repeat if container is not None else 1
+        before = self._frames
+        self._frames += next_tensordict.numel() * repeat
+        self.frames.fill_(self._frames)  # an async fill from a host int: no sync
+        return before
+
+    def _push(self) -> None:
+        raise NotImplementedError
+
+    def _reset_env_preprocess(self, tensordict: TensorDictBase) -> TensorDictBase:
+        self._push()  # before the base env draws its new lots
+        return super()._reset_env_preprocess(tensordict)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        self._frames = int(self.frames)
+        if "_container" in self.__dict__:
+            self._push()
+
+
+class OccupancyCurriculum(_Curriculum):
     """Sets the base ``ParkingEnv``'s occupancy from the number of frames stepped so far.
 
     Level ``k`` (phase ``k + 1``) holds from ``k * frames_per_level`` frames on; the new level
@@ -37,13 +76,6 @@ class OccupancyCurriculum(Transform):
                 or frames_per_level < 1:
             raise ValueError(f"frames_per_level must be an int >= 1, got {frames_per_level!r}")
         self.frames_per_level = frames_per_level
-        self.register_buffer("frames", torch.zeros((), dtype=torch.int64))
-        self._frames = 0
-
-    @property
-    def frames_seen(self) -> int:
-        """Frames stepped through this transform (env steps summed over the batch)."""
-        return self._frames
 
     @property
     def level(self) -> int:
@@ -59,10 +91,6 @@ class OccupancyCurriculum(Transform):
     def occupancy(self) -> float:
         return self.levels[self.level]
 
-    def _repeat(self) -> int:
-        container = self.container
-        return container.base_env.config.action_repeat if container is not None else 1
-
     def _push(self) -> None:
         container = self.container
         if container is not None:
@@ -70,21 +98,75 @@ class OccupancyCurriculum(Transform):
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
               ) -> TensorDictBase:
-        self._frames += next_tensordict.numel() * self._repeat()
-        self.frames.fill_(self._frames)  # an async fill from a host int: no sync
+        self._count(next_tensordict)
         self._push()
         return next_tensordict
-
-    def _reset_env_preprocess(self, tensordict: TensorDictBase) -> TensorDictBase:
-        self._push()  # before the base env draws its new lots
-        return super()._reset_env_preprocess(tensordict)
-
-    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
-        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
-        self._frames = int(self.frames)
-        if "_container" in self.__dict__:
-            self._push()
 
     def extra_repr(self) -> str:
         return (f"levels={self.levels}, frames_per_level={self.frames_per_level}, "
                 f"frames_seen={self._frames}, phase={self.phase}")
+
+
+class SuccessCurriculum(_Curriculum):
+    """Sets the base ``ParkingEnv``'s success threshold, from a loose ``start`` (so that the
+    success bonus is seen early in training) down to ``final`` as training succeeds.
+
+    Every ``window`` frames, if at least ``target`` of the episodes that ended in the window
+    succeeded, the threshold is multiplied by ``factor`` (and kept >= ``final``); else it
+    stays. The decision is a ``torch.where`` on device and the frame count a Python int: no
+    step reads a device tensor. The threshold and the window's counts are buffers, so
+    ``env.state_dict()`` resumes them.
+
+    Args:
+        start: the threshold on C to begin with, > 0.
+        final: the threshold to end at, in (0, start] (the paper's 4e-4 by default).
+        factor: the multiplier of one tightening, in (0, 1).
+        target: the success rate in (0, 1] of a window that earns a tightening.
+        window: frames (steps of dt summed over the batch) per decision, >= 1.
+    """
+
+    def __init__(self, start: float, final: float = 4e-4, factor: float = 0.5,
+                 target: float = 0.5, window: int = 163_840) -> None:
+        super().__init__()
+        for name, value, ok, bounds in (("start", start, start > 0, "> 0"),
+                                        ("final", final, 0 < final <= start, "in (0, start]"),
+                                        ("factor", factor, 0 < factor < 1, "in (0, 1)"),
+                                        ("target", target, 0 < target <= 1, "in (0, 1]")):
+            if not ok:
+                raise ValueError(f"{name} must be {bounds}, got {value!r}")
+        if isinstance(window, bool) or not isinstance(window, int) or window < 1:
+            raise ValueError(f"window must be an int >= 1, got {window!r}")
+        self.final, self.factor, self.target, self.window = final, factor, target, window
+        self.register_buffer("threshold", torch.tensor(float(start)))
+        self.register_buffer("ended", torch.zeros(()))
+        self.register_buffer("succeeded", torch.zeros(()))
+
+    @property
+    def success_threshold(self) -> float:
+        """The current threshold (reads the buffer: a host sync on CUDA)."""
+        return float(self.threshold)
+
+    def _push(self) -> None:
+        container = self.container
+        if container is not None:
+            container.base_env._success_threshold.copy_(self.threshold)
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
+              ) -> TensorDictBase:
+        done = next_tensordict.get("done")
+        self.ended += done.sum()
+        self.succeeded += (done & next_tensordict.get("success")).sum()
+        before = self._count(next_tensordict)
+        if self._frames // self.window > before // self.window:
+            rate = self.succeeded / self.ended.clamp_min(1.0)
+            tighter = (self.threshold * self.factor).clamp_min(self.final)
+            self.threshold.copy_(torch.where(rate >= self.target, tighter, self.threshold))
+            self.ended.zero_()
+            self.succeeded.zero_()
+            self._push()
+        return next_tensordict
+
+    def extra_repr(self) -> str:
+        return (f"threshold={self.success_threshold:.3g}, final={self.final}, "
+                f"factor={self.factor}, target={self.target}, window={self.window}, "
+                f"frames_seen={self._frames}")

@@ -7,6 +7,7 @@ The class is plumbing: specs, seeding, action checks, and reset muxing. The phys
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from functools import partial
 
@@ -73,12 +74,17 @@ class ParkingEnv(EnvBase):
         self._occupancy = self.config.occupancy
         cfg = self.config
         self.layout = build_layout(cfg.lot, cfg.vehicle, self.device)
+        # World holds this tensor; the success_threshold setter and SuccessCurriculum change it
+        # in place, and a compiled step reads it at run time.
+        self._success_threshold = torch.tensor(cfg.reward.success_threshold,
+                                               dtype=torch.float32, device=self.device)
         self._world = World(
             obstacles=BoxFrame(*(t.contiguous() for t in box_frame(self.layout.obstacles))),
             rotation=line_rotation(cfg.lidar.n_rays, self.device),
             goal_poses=self.layout.goal_poses,
             slots_and_walls=self.layout.slots_and_walls,
             extent=torch.tensor([self.layout.width, self.layout.height], device=self.device),
+            success_threshold=self._success_threshold,
         )
         step_fn = partial(parking_step, world=self._world, cfg=cfg)
         reset_fn = partial(reset_rows, world=self._world, cfg=cfg)
@@ -105,6 +111,19 @@ class ParkingEnv(EnvBase):
     @occupancy.setter
     def occupancy(self, value: float) -> None:
         self._occupancy = check_occupancy(value, "occupancy")
+
+    @property
+    def success_threshold(self) -> float:
+        """The success test's threshold on C (``config.reward.success_threshold`` at first).
+        Setting it applies from the next step; ``SuccessCurriculum`` lowers it in training."""
+        return float(self._success_threshold)
+
+    @success_threshold.setter
+    def success_threshold(self, value: float) -> None:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not math.isfinite(value) or value <= 0:
+            raise ValueError(f"success_threshold must be a finite float > 0, got {value!r}")
+        self._success_threshold.fill_(float(value))
 
     @property
     def obs_dim(self) -> int:

@@ -20,9 +20,9 @@ def parking_cost(dx: Tensor, dy: Tensor, psi: Tensor, alpha: Tensor, v: Tensor,
     return cfg.w_x * dx.abs() + cfg.w_y * dy.abs() + cfg.w_alpha * dalpha.abs() + cfg.w_v * v.abs()
 
 
-def is_success(cost: Tensor, cfg: RewardConfig) -> Tensor:
-    """C < success_threshold, bool [...]. With SI units 4e-4 is about 1 mm and 0.1 deg."""
-    return cost < cfg.success_threshold
+def is_success(cost: Tensor, threshold: Tensor | float) -> Tensor:
+    """C < threshold, bool [...]. With SI units the paper's 4e-4 is about 1 mm and 0.1 deg."""
+    return cost < threshold
 
 
 def parking_reward(cost: Tensor, collision: Tensor, success: Tensor, cfg: RewardConfig) -> Tensor:

@@ -26,13 +26,15 @@ class World(NamedTuple):
     """Constants shared by every env. obstacles: frame with fields (M,) = S parked-car boxes
     then 4 walls; rotation: LIDAR line rotation (2, 2 * lines); goal_poses: (S, 3) rear-axle
     goal pose of each slot; slots_and_walls: frame (S + 4,) that a start pose must not touch;
-    extent: (2,) the lot's width and height, m."""
+    extent: (2,) the lot's width and height, m; success_threshold: () the success test's
+    threshold on C, a tensor so that changing it in place needs no recompilation."""
 
     obstacles: BoxFrame
     rotation: Tensor
     goal_poses: Tensor
     slots_and_walls: BoxFrame
     extent: Tensor
+    success_threshold: Tensor
 
 
 class ParkingState(NamedTuple):
@@ -123,7 +125,7 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
         collision = torch.zeros_like(collision)
     state = state._replace(pose=pose, speed=v, steps=state.steps + 1)
     observation, cost = observe(state, world, cfg)
-    success = is_success(cost, cfg.reward)
+    success = is_success(cost, world.success_threshold)
     reward = parking_reward(cost, collision, success, cfg.reward)
     terminated = collision | success
     truncated = (state.steps >= cfg.max_steps) & ~terminated
@@ -152,7 +154,7 @@ def near_starts_free(near: Tensor, goal: Tensor, present: Tensor, world: World,
     g = goal[:, None, :]
     cost = parking_cost(g[..., 0] - near[..., 0], g[..., 1] - near[..., 1], near[..., 2],
                         g[..., 2], torch.zeros_like(near[..., 0]), cfg.reward)
-    return free & inside & ~is_success(cost, cfg.reward)
+    return free & inside & ~is_success(cost, world.success_threshold)
 
 
 def reset_rows(state: ParkingState, observation: Tensor, mask: Tensor, goal_slot: Tensor,

@@ -22,7 +22,8 @@ class EnvConfig:
     max_steps: int = 1000
     # Append the goal seen from the car (torchpark.features) to the policy's input.
     goal_features: bool = False
-    # The training env's success threshold on C (evaluation always uses the paper's 4e-4).
+    # The training env's success threshold on C (evaluation always uses the paper's 4e-4);
+    # curriculum.success_start replaces it with a curriculum.
     success_threshold: float = 4e-4
     # The probability that a training episode starts near its goal (LotConfig.near_goal_starts;
     # evaluation always draws the paper's uniform starts).
@@ -42,6 +43,14 @@ class EnvConfig:
 class CurriculumConfig:
     levels: list[float] = field(default_factory=lambda: list(PAPER_LEVELS))
     frames_per_level: int = 2_000_000
+    # torchpark.SuccessCurriculum: the training threshold starts at success_start and, every
+    # success_window frames in which at least success_target of the ended episodes
+    # succeeded, is multiplied by success_factor, down to the paper's 4e-4. None: no such
+    # curriculum (the threshold is env.success_threshold).
+    success_start: float | None = None
+    success_factor: float = 0.5
+    success_target: float = 0.5
+    success_window: int = 163_840
 
 
 @dataclass

@@ -38,6 +38,7 @@ from torchpark import (
     ParkingConfig,
     ParkingEnv,
     RewardConfig,
+    SuccessCurriculum,
     VehicleConfig,
 )
 from torchpark.actions import PowerActionMap
@@ -71,10 +72,20 @@ def make_env(cfg: TrainConfig) -> TransformedEnv:
     return TransformedEnv(base, Compose(
         InitTracker(), StepCounter(), RewardSum(),
         OccupancyCurriculum(cfg.curriculum.levels, cfg.curriculum.frames_per_level),
+        *success_curriculum(cfg),
         # After RewardSum: the logged episode reward stays in the paper's units.
         RewardScaling(loc=0.0, scale=cfg.loss.reward_scale),
         *policy_input(cfg),
     ))
+
+
+def success_curriculum(cfg: TrainConfig) -> list[Transform]:
+    """The success-threshold curriculum, when ``curriculum.success_start`` asks for one."""
+    c = cfg.curriculum
+    if c.success_start is None:
+        return []
+    return [SuccessCurriculum(c.success_start, RewardConfig().success_threshold,
+                              c.success_factor, c.success_target, c.success_window)]
 
 
 def policy_input(cfg: TrainConfig) -> list[Transform]:
@@ -168,7 +179,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> Path:
     # After the collector's reset: spread the first timeouts over [1, max_steps] steps.
     env.base_env.randomize_step_counts()
     logger = TensorboardLogger(exp_name=cfg.logger.exp_name, log_dir=cfg.logger.log_dir)
-    curriculum = env.transform[3]
+    curriculum = next(t for t in env.transform if isinstance(t, OccupancyCurriculum))
 
     def save(name: str) -> Path:
         path = run_dir / name
@@ -205,6 +216,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> Path:
         scalars = {
             **episode_stats(batch, repeat),
             "curriculum/occupancy": curriculum.occupancy, "curriculum/phase": curriculum.phase,
+            "curriculum/success_threshold": env.base_env.success_threshold,
             "loss/objective": losses["loss_objective"].item(),
             "loss/critic": losses["loss_critic"].item(),
             "loss/kl_approx": losses["kl_approx"].item(),
