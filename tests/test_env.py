@@ -206,6 +206,7 @@ def test_bad_occupancy_raises(p):
     (lambda: LidarConfig(n_rays=0), "n_rays"),
     (lambda: LidarConfig(max_range=-1.0), "max_range"),
     (lambda: RewardConfig(success_threshold=0.0), "success_threshold"),
+    (lambda: RewardConfig(brake_penalty=float("nan")), "brake_penalty"),
     (lambda: ParkingConfig(max_steps=0), "max_steps"),
 ])
 def test_impossible_configs_raise(make, match):
@@ -349,6 +350,28 @@ def test_emergency_brake_never_collides_and_holds_the_pose():
         td = plain.step(td.set("action", action))["next"]
         hits += int(td["collision"].sum())
     assert hits > 0  # the same drive without the brake collides
+
+
+def test_brake_penalty_is_added_on_braked_steps_only():
+    def drive(penalty: float) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+        config = ParkingConfig(occupancy=0.9, emergency_brake=True,
+                               reward=RewardConfig(brake_penalty=penalty))
+        env = ParkingEnv(64, seed=2, config=config)
+        td = env.reset()
+        rewards, braked = [], []
+        action = torch.tensor([[5.0, 0.3]]).expand(64, 2)
+        for _ in range(60):
+            td = env.step(td.set("action", action))["next"]
+            rewards.append(td["reward"][:, 0])
+            braked.append(env.state.speed == 0)  # full throttle: speed 0 only when braked
+        return rewards, braked
+
+    plain, braked = drive(0.0)
+    penalised, same = drive(-3.0)
+    assert all(torch.equal(a, b) for a, b in zip(braked, same, strict=True))
+    for r0, r1, b in zip(plain, penalised, braked, strict=True):
+        assert torch.allclose(r1, r0 + torch.where(b, -3.0, 0.0))
+    assert any(b.any() for b in braked) and not all(b.all() for b in braked)
 
 
 def test_randomize_step_counts_spreads_the_first_timeouts():

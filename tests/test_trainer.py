@@ -10,10 +10,11 @@ import pytest
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from torchpark import LotConfig, RewardConfig
 from trainers.config import load_config
 from trainers.evaluate import COLUMNS, Episodes, evaluate
 from trainers.evaluate import main as evaluate_main
-from trainers.ppo import main, train
+from trainers.ppo import main, parking_config, train
 
 TAGS = {
     "episode/reward", "episode/length", "episode/success_rate", "episode/collision_rate",
@@ -131,7 +132,7 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
         f"logger.log_dir={tmp_path}", "env.action_repeat=2", "env.action_exponents=[3.0,1.0]",
         "env.near_goal_starts=0.5", "env.emergency_brake=true", "env.goal_features=true",
         "model.state_dependent_std=true", "collector.frames_per_batch=2048",
-        "collector.total_frames=4096", "curriculum.success_start=1000.0",
+        "collector.total_frames=4096", "curriculum.success_start=1000.0", "env.brake_penalty=-1.0",
         "curriculum.success_window=1024",
     ])
     final = train(cfg)
@@ -147,6 +148,18 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     rows = evaluate(str(final), episodes=4, levels=(0.9,))
     assert rows[0]["collision"] == 0.0  # the brake stops every colliding step
     assert 0 < rows[0]["mean_length"] <= cfg.env.max_steps
+
+
+def test_training_aids_stay_out_of_the_evaluation_env():
+    cfg = load_config("smoke", ["env.success_threshold=0.1", "env.brake_penalty=-1.0",
+                                "env.near_goal_starts=0.5", "env.emergency_brake=true",
+                                "env.action_repeat=2"])
+    training, evaluation = parking_config(cfg, True), parking_config(cfg, False)
+    assert (training.reward.success_threshold, training.reward.brake_penalty,
+            training.lot.near_goal_starts) == (0.1, -1.0, 0.5)
+    assert evaluation.reward == RewardConfig() and evaluation.lot == LotConfig()
+    for config in (training, evaluation):  # what the agent is stays
+        assert config.emergency_brake and config.action_repeat == 2
 
 
 def test_action_repeat_must_divide_the_batch():

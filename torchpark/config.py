@@ -132,12 +132,15 @@ class RewardConfig:
     collision_penalty: float = -200.0
     success_bonus: float = 1000.0
     success_threshold: float = 4e-4
+    # Not in the paper: added on a step that ParkingConfig.emergency_brake stops (a training
+    # signal against leaning on the brake; 0 by default).
+    brake_penalty: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("w_x", "w_y", "w_alpha", "w_v"):
             value = getattr(self, name)
             _require(math.isfinite(value) and value >= 0, f"RewardConfig.{name}", ">= 0", value)
-        for name in ("collision_penalty", "success_bonus"):
+        for name in ("collision_penalty", "success_bonus", "brake_penalty"):
             value = getattr(self, name)
             _require(math.isfinite(value), f"RewardConfig.{name}", "finite", value)
         _positive("RewardConfig.success_threshold", self.success_threshold)

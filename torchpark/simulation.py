@@ -117,16 +117,17 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
     v, delta = clamp_action(action, cfg.vehicle)
     pose = bicycle_step(state.pose, v, delta, cfg.vehicle)
     collision = touches_obstacle(vehicle_frame(pose, cfg.vehicle), world, state.present)
+    braked = torch.zeros_like(collision)
     if cfg.emergency_brake:
         # Keep the old pose where the new one would collide. The old pose is collision-free
         # (a start is, and so is every pose a braked step keeps), so nothing collides.
-        pose = torch.where(collision[:, None], state.pose, pose)
-        v = torch.where(collision, 0.0, v)
-        collision = torch.zeros_like(collision)
+        braked, collision = collision, braked
+        pose = torch.where(braked[:, None], state.pose, pose)
+        v = torch.where(braked, 0.0, v)
     state = state._replace(pose=pose, speed=v, steps=state.steps + 1)
     observation, cost = observe(state, world, cfg)
     success = is_success(cost, world.success_threshold)
-    reward = parking_reward(cost, collision, success, cfg.reward)
+    reward = parking_reward(cost, collision, success, braked, cfg.reward)
     terminated = collision | success
     truncated = (state.steps >= cfg.max_steps) & ~terminated
     column = (reward, terminated, truncated, terminated | truncated, success, collision)

@@ -37,6 +37,8 @@ class EnvConfig:
     action_repeat: int = 1
     # ParkingConfig.emergency_brake: a step that would collide is not taken (speed 0).
     emergency_brake: bool = False
+    # RewardConfig.brake_penalty: added to the reward of a step the brake stops (training).
+    brake_penalty: float = 0.0
 
 
 @dataclass

@@ -52,14 +52,15 @@ _MODEL_SECTIONS = ("env", "model", "curriculum")
 
 def parking_config(cfg: TrainConfig, training: bool) -> ParkingConfig:
     """The env's config for this run. What the agent is (held actions, the brake) is the same
-    in training and evaluation; the training aids (success threshold, near-goal starts) apply
-    only with ``training``, evaluation keeps the paper's."""
+    in training and evaluation; the training aids (success threshold, brake penalty, near-goal
+    starts) apply only with ``training``, evaluation keeps the paper's."""
     config = ParkingConfig(max_steps=cfg.env.max_steps, action_repeat=cfg.env.action_repeat,
                            emergency_brake=cfg.env.emergency_brake)
     if not training:
         return config
     return dataclasses.replace(
-        config, reward=RewardConfig(success_threshold=cfg.env.success_threshold),
+        config, reward=RewardConfig(success_threshold=cfg.env.success_threshold,
+                                    brake_penalty=cfg.env.brake_penalty),
         lot=LotConfig(near_goal_starts=cfg.env.near_goal_starts))
 
 
