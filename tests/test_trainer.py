@@ -9,10 +9,11 @@ import imageio.v3 as iio
 import pytest
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from torchrl.envs import TransformedEnv
 
-from torchpark import LotConfig, RewardConfig
+from torchpark import LotConfig, ParkingConfig, ParkingEnv, RewardConfig
 from trainers.config import load_config
-from trainers.evaluate import COLUMNS, Episodes, evaluate
+from trainers.evaluate import COLUMNS, Episodes, evaluate, run_episodes
 from trainers.evaluate import main as evaluate_main
 from trainers.ppo import main, parking_config, train
 
@@ -116,13 +117,28 @@ def test_failure_modes_follow_their_definitions():
                    timeout=torch.tensor([False, False, True, True]),
                    length=torch.tensor([50.0, 60.0, 300.0, 300.0]), final=final, poses=poses,
                    goal_slot=torch.zeros(4, dtype=torch.long),
-                   steps=torch.tensor([50.0, 60.0, 300.0, 300.0]))
+                   steps=torch.tensor([50.0, 60.0, 300.0, 300.0]),
+                   braked=torch.zeros(4, dtype=torch.bool))
     assert run.grazing.tolist() == [True, False, False, False]
     assert run.freezing.tolist() == [False, False, False, True]
     # With actions held for 5 steps of dt, poses are 5 steps apart: 100 steps = 20 poses.
     held = dataclasses.replace(run, poses=poses[::5].clone(), length=run.length / 5, repeat=5)
     held.poses[41:, 3, 0] = 20.0  # stops after env step 40 (200 steps of dt), then waits
     assert held.freezing.tolist() == [False, False, False, True]
+
+
+def test_braked_episodes_are_the_ones_that_collide_without_the_brake():
+    """Same lots, same constant action: up to its first braked step an episode with the brake
+    drives exactly as without it, so the braked ones are those that collide without it."""
+    def run(brake: bool) -> Episodes:
+        config = ParkingConfig(occupancy=0.9, emergency_brake=brake, max_steps=100)
+        env = TransformedEnv(ParkingEnv(64, seed=4, config=config))
+        return run_episodes(lambda td: td.set("action", torch.tensor([[5.0, 0.3]]).expand(64, 2)),
+                            env, 100)
+
+    plain, braked = run(False), run(True)
+    assert 0 < int(plain.collision.sum()) < 64 and not plain.braked.any()
+    assert torch.equal(braked.braked, plain.collision) and not braked.collision.any()
 
 
 def test_training_aids_train_end_to_end_and_evaluate(tmp_path):

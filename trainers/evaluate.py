@@ -7,7 +7,8 @@ Runs the deterministic policy (the TanhNormal's mode) for ``--episodes`` episode
 occupancy level on lots the training never drew (its own seed; the same goals and starts at
 every level, so the levels differ only in their parked cars), and prints and writes
 (``evaluation.md``, ``evaluation.csv``) success, collision and timeout rates, mean episode
-length, the failure modes (grazing collisions, freezing: see GRAZING_SPEED, FREEZE_DISTANCE),
+length, the failure modes (grazing collisions, freezing: see GRAZING_SPEED, FREEZE_DISTANCE;
+braked: episodes in which the emergency brake, when on, stopped a step),
 and the median and 90th percentile of the final position and heading errors; with
 ``--videos`` (mp4 by default) also one rollout video per level.
 """
@@ -37,7 +38,7 @@ from trainers.ppo import parking_config, policy_input
 # Table 2 of the paper: success rate per curriculum phase (occupancy level).
 PAPER_SUCCESS = dict(zip(PAPER_LEVELS, (0.20, 0.52, 0.65, 0.64, 0.59, 0.62), strict=True))
 COLUMNS = ("occupancy", "episodes", "success", "collision", "timeout", "grazing", "freezing",
-           "mean_length", "pos_err_median_m", "pos_err_p90_m", "heading_err_median_deg",
+           "braked", "mean_length", "pos_err_median_m", "pos_err_p90_m", "heading_err_median_deg",
            "heading_err_p90_deg", "paper_success")
 
 
@@ -77,7 +78,9 @@ class Episodes:
     poses: (T + 1, N, 3) rear-axle poses after each env step from the reset on (rows repeat
     their last pose after their end); final: (N, 7) the last observation's [dx, dy, cos psi,
     sin psi, v, cos alpha, sin alpha]; length: env steps taken (an index into ``poses``);
-    steps: steps of dt taken (``repeat`` per env step when the env holds its actions).
+    steps: steps of dt taken (``repeat`` per env step when the env holds its actions);
+    braked: the emergency brake stopped at least one of the episode's steps (each one a
+    collision in the paper's env, which has no brake).
     """
 
     success: torch.Tensor
@@ -88,6 +91,7 @@ class Episodes:
     poses: torch.Tensor
     goal_slot: torch.Tensor
     steps: torch.Tensor
+    braked: torch.Tensor
     repeat: int = 1
 
     @property
@@ -125,12 +129,17 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int) -> Episodes:
                for key in ("success", "collision", "truncated")}
     length = torch.zeros(n)
     steps = torch.zeros(n)
+    braked = torch.zeros(n, dtype=torch.bool)
     td = env.reset()
     poses = [base.state.pose.cpu()]
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
         for step in range(1, max_steps + 1):
             td = env.step(actor(td))
             nxt = td["next"]
+            # Only the brake stops a car that was told to move (a held action that is braked
+            # once is braked at its last step too: same pose, same action).
+            stopped = (base.state.speed == 0) & (td["action"][:, 0] != 0)
+            braked |= ~ended & stopped.cpu()
             first = nxt["done"][:, 0].cpu() & ~ended
             final[first] = nxt["observation"][:, :7].cpu()[first]
             for key in outcome:
@@ -143,7 +152,7 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int) -> Episodes:
                 break
             td = step_mdp(td)
     return Episodes(outcome["success"], outcome["collision"], outcome["truncated"], length,
-                    final, torch.stack(poses), base.state.goal_slot.cpu(), steps,
+                    final, torch.stack(poses), base.state.goal_slot.cpu(), steps, braked,
                     base.config.action_repeat)
 
 
@@ -160,6 +169,7 @@ def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
         "timeout": run.timeout.float().mean().item(),
         "grazing": run.grazing.float().mean().item(),
         "freezing": run.freezing.float().mean().item(),
+        "braked": run.braked.float().mean().item(),
         "mean_length": run.steps.mean().item(),
         "pos_err_median_m": position.median().item(),
         "pos_err_p90_m": position.quantile(0.9).item(),
