@@ -15,6 +15,13 @@ from torchpark.config import check_occupancy
 PAPER_LEVELS = (0.0, 0.2, 0.4, 0.6, 0.8, 0.9)
 
 
+def _frame_count(name: str, value: int) -> int:
+    """``value`` if it is an int >= 1 (a number of frames), else a ValueError naming it."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+    return value
+
+
 class _Curriculum(Transform):
     """A transform that counts frames (env steps summed over the batch, ``action_repeat``
     frames each) in a buffer mirrored by a Python int, so that no step reads a device tensor
@@ -72,10 +79,7 @@ class OccupancyCurriculum(_Curriculum):
         if not levels:
             raise ValueError("levels must hold at least one occupancy, got an empty sequence")
         self.levels = tuple(check_occupancy(v, f"levels[{i}]") for i, v in enumerate(levels))
-        if isinstance(frames_per_level, bool) or not isinstance(frames_per_level, int) \
-                or frames_per_level < 1:
-            raise ValueError(f"frames_per_level must be an int >= 1, got {frames_per_level!r}")
-        self.frames_per_level = frames_per_level
+        self.frames_per_level = _frame_count("frames_per_level", frames_per_level)
 
     @property
     def level(self) -> int:
@@ -134,9 +138,8 @@ class SuccessCurriculum(_Curriculum):
                                         ("target", target, 0 < target <= 1, "in (0, 1]")):
             if not ok:
                 raise ValueError(f"{name} must be {bounds}, got {value!r}")
-        if isinstance(window, bool) or not isinstance(window, int) or window < 1:
-            raise ValueError(f"window must be an int >= 1, got {window!r}")
-        self.final, self.factor, self.target, self.window = final, factor, target, window
+        self.final, self.factor, self.target = final, factor, target
+        self.window = _frame_count("window", window)
         self.register_buffer("threshold", torch.tensor(float(start)))
         self.register_buffer("ended", torch.zeros(()))
         self.register_buffer("succeeded", torch.zeros(()))
