@@ -11,7 +11,14 @@ from torchrl.collectors import Collector
 from torchrl.envs import InitTracker, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
-from torchpark import LidarConfig, ParkingConfig, ParkingEnv, RewardConfig
+from torchpark import (
+    DockingConfig,
+    LidarConfig,
+    LotConfig,
+    ParkingConfig,
+    ParkingEnv,
+    RewardConfig,
+)
 from torchpark.simulation import ParkingState
 
 
@@ -264,12 +271,17 @@ def test_collector_auto_resets_and_keeps_the_extra_keys():
     assert batch["is_init"].sum() >= 16
 
 
-def test_compiled_step_is_one_graph_and_matches_eager():
+@pytest.mark.parametrize("config", [
+    ParkingConfig(),
+    ParkingConfig(lot=LotConfig(near_goal_starts=0.5), docking=DockingConfig(lateral=1.0,
+                                                                              heading=0.6)),
+], ids=["paper", "docking"])
+def test_compiled_step_is_one_graph_and_matches_eager(config):
     """compile_step=True compiles step and reset with fullgraph=True: any graph break raises."""
     actions = random_actions(64, 40, 9)
     outs = []
     for compiled in (False, True):
-        env = ParkingEnv(64, seed=10, compile_step=compiled)
+        env = ParkingEnv(64, seed=10, config=config, compile_step=compiled)
         env.occupancy = 0.6
         td = env.reset()
         seq = []
@@ -277,6 +289,7 @@ def test_compiled_step_is_one_graph_and_matches_eager():
             td_out, td = env.step_and_maybe_reset(TensorDict({**td, "action": a}, batch_size=[64]))
             seq.append(td_out["next"].select("observation", "reward", "done", "collision"))
         outs.append(torch.stack(seq))
+        assert config.docking is None or env.state.docking.any()  # the layer did drive
     eager, compiled = outs
     assert torch.equal(eager["done"], compiled["done"])
     assert torch.equal(eager["collision"], compiled["collision"])

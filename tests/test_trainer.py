@@ -11,7 +11,7 @@ import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from torchrl.envs import TransformedEnv
 
-from torchpark import LotConfig, ParkingConfig, ParkingEnv, RewardConfig
+from torchpark import DockingConfig, LotConfig, ParkingConfig, ParkingEnv, RewardConfig
 from trainers.config import load_config
 from trainers.evaluate import COLUMNS, Episodes, evaluate, run_episodes
 from trainers.evaluate import main as evaluate_main
@@ -118,7 +118,8 @@ def test_failure_modes_follow_their_definitions():
                    length=torch.tensor([50.0, 60.0, 300.0, 300.0]), final=final, poses=poses,
                    goal_slot=torch.zeros(4, dtype=torch.long),
                    steps=torch.tensor([50.0, 60.0, 300.0, 300.0]),
-                   braked=torch.zeros(4, dtype=torch.bool))
+                   braked=torch.zeros(4, dtype=torch.bool),
+                   docked=torch.zeros(4, dtype=torch.bool))
     assert run.grazing.tolist() == [True, False, False, False]
     assert run.freezing.tolist() == [False, False, False, True]
     # With actions held for 5 steps of dt, poses are 5 steps apart: 100 steps = 20 poses.
@@ -143,13 +144,14 @@ def test_braked_episodes_are_the_ones_that_collide_without_the_brake():
 
 def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     """Every training option off the paper's path at once: held actions, the cubic speed map,
-    near-goal starts, the emergency brake, a state-dependent std, the success curriculum."""
+    near-goal starts, the emergency brake, a state-dependent std, the success curriculum,
+    the docking layer."""
     cfg = load_config("smoke", [
         f"logger.log_dir={tmp_path}", "env.action_repeat=2", "env.action_exponents=[3.0,1.0]",
         "env.near_goal_starts=0.5", "env.emergency_brake=true", "env.goal_features=true",
         "model.state_dependent_std=true", "collector.frames_per_batch=2048",
         "collector.total_frames=4096", "curriculum.success_start=1000.0", "env.brake_penalty=-1.0",
-        "curriculum.success_window=1024",
+        "curriculum.success_window=1024", "env.docking=true", "env.docking_lateral=1.0",
     ])
     final = train(cfg)
     ckpt = torch.load(final, weights_only=False)
@@ -164,18 +166,21 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     rows = evaluate(str(final), episodes=4, levels=(0.9,))
     assert rows[0]["collision"] == 0.0  # the brake stops every colliding step
     assert 0 < rows[0]["mean_length"] <= cfg.env.max_steps
+    assert 0.0 <= rows[0]["docked"] <= 1.0
 
 
 def test_training_aids_stay_out_of_the_evaluation_env():
     cfg = load_config("smoke", ["env.success_threshold=0.1", "env.brake_penalty=-1.0",
                                 "env.near_goal_starts=0.5", "env.emergency_brake=true",
-                                "env.action_repeat=2"])
+                                "env.action_repeat=2", "env.docking=true",
+                                "env.docking_lateral=0.3"])
     training, evaluation = parking_config(cfg, True), parking_config(cfg, False)
     assert (training.reward.success_threshold, training.reward.brake_penalty,
             training.lot.near_goal_starts) == (0.1, -1.0, 0.5)
     assert evaluation.reward == RewardConfig() and evaluation.lot == LotConfig()
     for config in (training, evaluation):  # what the agent is stays
         assert config.emergency_brake and config.action_repeat == 2
+        assert config.docking == DockingConfig(lateral=0.3)
 
 
 def test_action_repeat_must_divide_the_batch():

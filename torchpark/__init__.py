@@ -1,6 +1,7 @@
 """torchpark: batched autonomous-parking simulation for reinforcement learning in TorchRL."""
 
 from torchpark.config import (
+    DockingConfig,
     LidarConfig,
     LotConfig,
     ParkingConfig,
@@ -16,6 +17,7 @@ register()  # gymnasium.make("torchpark/Parking-v0")
 
 __all__ = [
     "ENV_ID",
+    "DockingConfig",
     "GoalFrameFeatures",
     "LidarConfig",
     "LotConfig",

@@ -147,6 +147,32 @@ class RewardConfig:
 
 
 @dataclass(frozen=True)
+class DockingConfig:
+    """A docking layer under the policy (torchpark.docking): once the rear axle is in the
+    funnel behind its goal (0 to ``reach`` m back along the slot axis, within ``lateral`` m of
+    it, heading within ``heading`` rad of the goal's), a fixed feedback law drives for the
+    rest of the episode: tan(delta) = L (-gain e - 2 sqrt(gain) th) for lateral offset e and
+    heading error th (critically damped over 1 / sqrt(gain) m travelled), and
+    v = clamp(speed_gain s, min_speed, max_speed) towards the goal, s m away along the axis.
+    """
+
+    reach: float = 6.0  # m
+    lateral: float = 0.1  # m
+    heading: float = 0.1  # rad
+    gain: float = 16.0  # 1/m^2
+    speed_gain: float = 0.8  # 1/s
+    min_speed: float = 1e-3  # m/s: the success test needs |v| well under 4 mm/s
+    max_speed: float = 1.0  # m/s
+
+    def __post_init__(self) -> None:
+        for name in ("reach", "lateral", "heading", "gain", "speed_gain", "min_speed",
+                     "max_speed"):
+            _positive(f"DockingConfig.{name}", getattr(self, name))
+        _require(self.min_speed <= self.max_speed, "DockingConfig.min_speed",
+                 f"<= max_speed = {self.max_speed}", self.min_speed)
+
+
+@dataclass(frozen=True)
 class ParkingConfig:
     """Everything the environment is built from."""
 
@@ -164,8 +190,13 @@ class ParkingConfig:
     # names one): a step whose new pose would touch a parked car or a wall is not taken, the
     # car stays where it is with speed 0, so no collision can happen.
     emergency_brake: bool = False
+    # A docking layer under the policy, off by default (the paper's "future work" names an
+    # MPC layer under the RL policy): see DockingConfig.
+    docking: DockingConfig | None = None
 
     def __post_init__(self) -> None:
+        _require(self.docking is None or isinstance(self.docking, DockingConfig),
+                 "ParkingConfig.docking", "None or a DockingConfig", self.docking)
         _require(isinstance(self.max_steps, int) and self.max_steps >= 1,
                  "ParkingConfig.max_steps", "an int >= 1", self.max_steps)
         _require(isinstance(self.action_repeat, int) and self.action_repeat >= 1,

@@ -13,6 +13,7 @@ import torch
 from torch import Tensor
 
 from torchpark.config import ParkingConfig
+from torchpark.docking import docking_action, goal_frame_error, in_funnel
 from torchpark.geometry import BoxFrame, frames_separation
 from torchpark.lidar import lidar_scan
 from torchpark.lot import StartDraw, choose_start
@@ -43,8 +44,10 @@ class ParkingState(NamedTuple):
     pose (N, 3) rear axle (x m, y m, psi rad); speed (N,) m/s; goal_slot (N,) int64; goal
     (N, 3) its goal pose; present (N, M) float32, 1 where the obstacle exists (a parked car in
     that slot; walls always), else 0; steps (N,) int64 steps taken this episode; occupancy (N,)
-    float32 the lot was drawn with. ``present`` is float, not bool: compiled kernels loaded
-    bool masks with branches that a random occupancy pattern mispredicted (45% slower).
+    float32 the lot was drawn with; docking (N,) bool, whether the docking layer
+    (``ParkingConfig.docking``) drives this episode. ``present`` is float, not bool:
+    compiled kernels loaded bool masks with branches that a random occupancy pattern
+    mispredicted (45% slower).
     """
 
     pose: Tensor
@@ -54,6 +57,7 @@ class ParkingState(NamedTuple):
     present: Tensor
     steps: Tensor
     occupancy: Tensor
+    docking: Tensor
 
 
 class StepResult(NamedTuple):
@@ -115,6 +119,14 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
     step, where it costs nothing, so the caller can reject the step before keeping its state.
     """
     v, delta = clamp_action(action, cfg.vehicle)
+    docking = state.docking
+    if cfg.docking is not None:
+        # Once in the funnel, the docking law drives until the episode ends.
+        error = goal_frame_error(state.pose, state.goal)
+        docking = docking | in_funnel(error, cfg.docking)
+        law_v, law_delta = docking_action(error, cfg.docking, cfg.vehicle)
+        v = torch.where(docking, law_v, v)
+        delta = torch.where(docking, law_delta, delta)
     pose = bicycle_step(state.pose, v, delta, cfg.vehicle)
     collision = touches_obstacle(vehicle_frame(pose, cfg.vehicle), world, state.present)
     braked = torch.zeros_like(collision)
@@ -124,7 +136,7 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
         braked, collision = collision, braked
         pose = torch.where(braked[:, None], state.pose, pose)
         v = torch.where(braked, 0.0, v)
-    state = state._replace(pose=pose, speed=v, steps=state.steps + 1)
+    state = state._replace(pose=pose, speed=v, steps=state.steps + 1, docking=docking)
     observation, cost = observe(state, world, cfg)
     success = is_success(cost, world.success_threshold)
     reward = parking_reward(cost, collision, success, braked, cfg.reward)
@@ -181,6 +193,7 @@ def reset_rows(state: ParkingState, observation: Tensor, mask: Tensor, goal_slot
         present=present,
         steps=torch.zeros_like(state.steps),
         occupancy=occupancy,
+        docking=torch.zeros_like(state.docking),
     )
     state = _mux_rows(mask, fresh, state)
     new_observation, _ = observe(state, world, cfg)

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field, replace
 
 from omegaconf import OmegaConf
 
+from torchpark.config import DockingConfig
 from torchpark.curriculum import PAPER_LEVELS
 
 
@@ -39,6 +40,12 @@ class EnvConfig:
     emergency_brake: bool = False
     # RewardConfig.brake_penalty: added to the reward of a step the brake stops (training).
     brake_penalty: float = 0.0
+    # ParkingConfig.docking: a fixed feedback law (torchpark.docking) drives once the car is
+    # in the funnel behind its goal, within docking_lateral m and docking_heading rad of the
+    # slot axis (training and evaluation).
+    docking: bool = False
+    docking_lateral: float = DockingConfig.lateral
+    docking_heading: float = DockingConfig.heading
 
 
 @dataclass

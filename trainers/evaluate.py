@@ -8,7 +8,8 @@ occupancy level on lots the training never drew (its own seed; the same goals an
 every level, so the levels differ only in their parked cars), and prints and writes
 (``evaluation.md``, ``evaluation.csv``) success, collision and timeout rates, mean episode
 length, the failure modes (grazing collisions, freezing: see GRAZING_SPEED, FREEZE_DISTANCE;
-braked: episodes in which the emergency brake, when on, stopped a step),
+braked: episodes in which the emergency brake, when on, stopped a step; docked: episodes
+the docking layer, when on, drove to their end),
 and the median and 90th percentile of the final position and heading errors; with
 ``--videos`` (mp4 by default) also one rollout video per level.
 """
@@ -38,8 +39,8 @@ from trainers.ppo import parking_config, policy_input
 # Table 2 of the paper: success rate per curriculum phase (occupancy level).
 PAPER_SUCCESS = dict(zip(PAPER_LEVELS, (0.20, 0.52, 0.65, 0.64, 0.59, 0.62), strict=True))
 COLUMNS = ("occupancy", "episodes", "success", "collision", "timeout", "grazing", "freezing",
-           "braked", "mean_length", "pos_err_median_m", "pos_err_p90_m", "heading_err_median_deg",
-           "heading_err_p90_deg", "paper_success")
+           "braked", "docked", "mean_length", "pos_err_median_m", "pos_err_p90_m",
+           "heading_err_median_deg", "heading_err_p90_deg", "paper_success")
 
 
 def load(path: str) -> tuple[TrainConfig, dict]:
@@ -80,7 +81,8 @@ class Episodes:
     sin psi, v, cos alpha, sin alpha]; length: env steps taken (an index into ``poses``);
     steps: steps of dt taken (``repeat`` per env step when the env holds its actions);
     braked: the emergency brake stopped at least one of the episode's steps (each one a
-    collision in the paper's env, which has no brake).
+    collision in the paper's env, which has no brake); docked: the docking layer (when on)
+    had taken over by the episode's end.
     """
 
     success: torch.Tensor
@@ -92,6 +94,7 @@ class Episodes:
     goal_slot: torch.Tensor
     steps: torch.Tensor
     braked: torch.Tensor
+    docked: torch.Tensor
     repeat: int = 1
 
     @property
@@ -130,6 +133,7 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int) -> Episodes:
     length = torch.zeros(n)
     steps = torch.zeros(n)
     braked = torch.zeros(n, dtype=torch.bool)
+    docked = torch.zeros(n, dtype=torch.bool)
     td = env.reset()
     poses = [base.state.pose.cpu()]
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
@@ -145,6 +149,7 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int) -> Episodes:
             for key in outcome:
                 outcome[key] |= first & nxt[key][:, 0].cpu()
             length[first] = step
+            docked[first] = base.state.docking.cpu()[first]
             steps[first] = base.state.steps.cpu()[first].float()
             poses.append(torch.where(ended[:, None], poses[-1], base.state.pose.cpu()))
             ended |= first
@@ -153,7 +158,7 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int) -> Episodes:
             td = step_mdp(td)
     return Episodes(outcome["success"], outcome["collision"], outcome["truncated"], length,
                     final, torch.stack(poses), base.state.goal_slot.cpu(), steps, braked,
-                    base.config.action_repeat)
+                    docked, base.config.action_repeat)
 
 
 def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
@@ -170,6 +175,7 @@ def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
         "grazing": run.grazing.float().mean().item(),
         "freezing": run.freezing.float().mean().item(),
         "braked": run.braked.float().mean().item(),
+        "docked": run.docked.float().mean().item(),
         "mean_length": run.steps.mean().item(),
         "pos_err_median_m": position.median().item(),
         "pos_err_p90_m": position.quantile(0.9).item(),

@@ -33,6 +33,7 @@ from torchrl.record.loggers import TensorboardLogger
 from tqdm import tqdm
 
 from torchpark import (
+    DockingConfig,
     LotConfig,
     OccupancyCurriculum,
     ParkingConfig,
@@ -51,11 +52,15 @@ _MODEL_SECTIONS = ("env", "model", "curriculum")
 
 
 def parking_config(cfg: TrainConfig, training: bool) -> ParkingConfig:
-    """The env's config for this run. What the agent is (held actions, the brake) is the same
-    in training and evaluation; the training aids (success threshold, brake penalty, near-goal
-    starts) apply only with ``training``, evaluation keeps the paper's."""
+    """The env's config for this run. What the agent is (held actions, the brake, the docking
+    layer) is the same in training and evaluation; the training aids (success threshold,
+    brake penalty, near-goal starts) apply only with ``training``, evaluation keeps the
+    paper's."""
     config = ParkingConfig(max_steps=cfg.env.max_steps, action_repeat=cfg.env.action_repeat,
-                           emergency_brake=cfg.env.emergency_brake)
+                           emergency_brake=cfg.env.emergency_brake,
+                           docking=DockingConfig(lateral=cfg.env.docking_lateral,
+                                                 heading=cfg.env.docking_heading)
+                           if cfg.env.docking else None)
     if not training:
         return config
     return dataclasses.replace(

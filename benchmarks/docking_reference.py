@@ -1,0 +1,67 @@
+"""Is the paper's success test reachable at all? The docking law alone, from near-goal starts.
+
+    python benchmarks/docking_reference.py [--envs 500] [--occupancies 0 0.9] [--gain 16]
+
+The success test ``C < 4e-4`` asks for about 1 mm, 0.1 deg and 4 mm/s at once. This script
+starts every episode in a box behind its goal (``LotConfig``'s near-goal poses: up to
+``back`` m back along the slot axis, ``side`` m to either side, ``heading`` rad off) and lets
+the docking layer (``torchpark.docking``, a fixed two-gain feedback law, its funnel set to
+that box) drive, in the paper's env otherwise (no brake, no held actions; the policy's action
+is ignored). It prints per box and occupancy the success (``C < 4e-4``) and collision rates
+of each env's first episode (1,000 steps), as a Markdown table. The law knows nothing of
+parked cars: its collisions are those of a straight approach.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import torch
+
+from torchpark import DockingConfig, LotConfig, ParkingConfig, ParkingEnv
+
+BOXES = [(1.5, 0.05, 0.05), (6.0, 0.1, 0.1), (6.0, 0.3, 0.2), (6.0, 1.0, 0.6)]
+
+
+def first_episode(env: ParkingEnv) -> tuple[torch.Tensor, torch.Tensor]:
+    """Success and collision (N,) bool of each env's first episode, zero actions."""
+    td = env.reset()
+    live = torch.ones(env.num_envs, dtype=torch.bool)
+    success, collision = ~live, ~live
+    action = torch.zeros(env.num_envs, 2)
+    for _ in range(env.config.max_steps):
+        out = env.step(td.set("action", action))["next"]
+        success = success | (live & out["success"][:, 0])
+        collision = collision | (live & out["collision"][:, 0])
+        live = live & ~out["done"][:, 0]
+        if not live.any():  # a host sync, fine outside the env's step
+            break
+        td = out
+    return success, collision
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", type=int, default=500)
+    parser.add_argument("--occupancies", type=float, nargs="+", default=[0.0, 0.9])
+    parser.add_argument("--gain", type=float, default=DockingConfig.gain, help="k, 1/m^2")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    print("| start box: back (m), side (m), heading (rad) | occupancy | success (C < 4e-4) "
+          "| collision |")
+    print("|---|---:|---:|---:|")
+    for back, side, heading in BOXES:
+        config = ParkingConfig(
+            lot=LotConfig(near_goal_starts=1.0, near_goal_reach=back, near_goal_lateral=side,
+                          near_goal_heading=heading),
+            docking=DockingConfig(reach=back, lateral=side, heading=heading, gain=args.gain))
+        for occupancy in args.occupancies:
+            env = ParkingEnv(args.envs, seed=args.seed, config=config)
+            env.occupancy = occupancy
+            success, collision = first_episode(env)
+            print(f"| {back}, ±{side}, ±{heading} | {occupancy:.0%} | "
+                  f"{success.float().mean():.2f} | {collision.float().mean():.2f} |")
+
+
+if __name__ == "__main__":
+    main()
