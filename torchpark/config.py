@@ -151,9 +151,10 @@ class DockingConfig:
     """A docking layer under the policy (torchpark.docking): once the rear axle is in the
     funnel behind its goal (0 to ``reach`` m back along the slot axis, within ``lateral`` m of
     it, heading within ``heading`` rad of the goal's), a fixed feedback law drives for the
-    rest of the episode: tan(delta) = L (-gain e - 2 sqrt(gain) th) for lateral offset e and
-    heading error th (critically damped over 1 / sqrt(gain) m travelled), and
-    v = clamp(speed_gain s, min_speed, max_speed) towards the goal, s m away along the axis.
+    rest of the episode: tan(delta) = L (-gain e -+ 2 sqrt(gain) th) for lateral offset e and
+    heading error th (- forwards, + reversing; critically damped over 1 / sqrt(gain) m
+    travelled), and v = clamp(speed_gain |s|, min_speed, max_speed) towards the goal, s m
+    away along the axis.
     """
 
     reach: float = 6.0  # m
