@@ -5,11 +5,11 @@
 The success test ``C < 4e-4`` asks for about 1 mm, 0.1 deg and 4 mm/s at once. This script
 starts every episode in a box behind its goal (``LotConfig``'s near-goal poses: up to
 ``back`` m back along the slot axis, ``side`` m to either side, ``heading`` rad off) and lets
-the docking layer (``torchpark.docking``, a fixed two-gain feedback law, its funnel set to
-that box) drive, in the paper's env otherwise (no brake, no held actions; the policy's action
-is ignored). It prints per box and occupancy the success (``C < 4e-4``) and collision rates
-of each env's first episode (1,000 steps), as a Markdown table. The law knows nothing of
-parked cars: its collisions are those of a straight approach.
+the docking layer (``torchpark.docking``, a fixed two-gain feedback law, its funnel 6 m
+deep and as wide as the box) drive, in the paper's env otherwise (no brake, no held
+actions; the policy's action is ignored). It prints per box and occupancy the success
+(``C < 4e-4``) and collision rates of each env's first episode (1,000 steps), as a Markdown
+table. The law knows nothing of parked cars: its collisions are those of its own path.
 """
 
 from __future__ import annotations
@@ -45,6 +45,8 @@ def main() -> None:
     parser.add_argument("--envs", type=int, default=500)
     parser.add_argument("--occupancies", type=float, nargs="+", default=[0.0, 0.9])
     parser.add_argument("--gain", type=float, default=DockingConfig.gain, help="k, 1/m^2")
+    parser.add_argument("--run-in", type=float, default=DockingConfig.run_in,
+                        help="m; 0: no backing up")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     print("| start box: back (m), side (m), heading (rad) | occupancy | success (C < 4e-4) "
@@ -54,7 +56,8 @@ def main() -> None:
         config = ParkingConfig(
             lot=LotConfig(near_goal_starts=1.0, near_goal_reach=back, near_goal_lateral=side,
                           near_goal_heading=heading),
-            docking=DockingConfig(reach=back, lateral=side, heading=heading, gain=args.gain))
+            docking=DockingConfig(lateral=side, heading=heading, gain=args.gain,
+                                  run_in=args.run_in))
         for occupancy in args.occupancies:
             env = ParkingEnv(args.envs, seed=args.seed, config=config)
             env.occupancy = occupancy

@@ -153,8 +153,9 @@ class DockingConfig:
     it, heading within ``heading`` rad of the goal's), a fixed feedback law drives for the
     rest of the episode: tan(delta) = L (-gain e -+ 2 sqrt(gain) th) for lateral offset e and
     heading error th (- forwards, + reversing; critically damped over 1 / sqrt(gain) m
-    travelled), and v = clamp(speed_gain |s|, min_speed, max_speed) towards the goal, s m
-    away along the axis.
+    travelled either way). Entering less than ``run_in`` m behind the goal, it first backs up
+    at max_speed until the goal is ``run_in`` m ahead (the errors settle on the way); then
+    v = clamp(speed_gain |s|, min_speed, max_speed) towards the goal, s m away along the axis.
     """
 
     reach: float = 6.0  # m
@@ -164,11 +165,14 @@ class DockingConfig:
     speed_gain: float = 0.8  # 1/s
     min_speed: float = 1e-3  # m/s: the success test needs |v| well under 4 mm/s
     max_speed: float = 1.0  # m/s
+    run_in: float = 4.0  # m: the law settles the errors to ~1e-5 within ~4 m of path
 
     def __post_init__(self) -> None:
         for name in ("reach", "lateral", "heading", "gain", "speed_gain", "min_speed",
                      "max_speed"):
             _positive(f"DockingConfig.{name}", getattr(self, name))
+        _require(math.isfinite(self.run_in) and 0.0 <= self.run_in <= self.reach,
+                 "DockingConfig.run_in", f"in [0, reach = {self.reach}]", self.run_in)
         _require(self.min_speed <= self.max_speed, "DockingConfig.min_speed",
                  f"<= max_speed = {self.max_speed}", self.min_speed)
 

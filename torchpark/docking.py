@@ -5,9 +5,11 @@ slot axis that is a linear control problem: per metre travelled, the lateral off
 rear axle changes by sin(th) and the heading error th by tan(delta) / L. The law
 tan(delta) = L (-k e - 2 sqrt(k) th) makes both decay, critically damped, over about
 1 / sqrt(k) m travelled, and the speed towards the goal falls with the distance left down to
-a creep of mm/s. ``ParkingConfig.docking`` (a :class:`~torchpark.config.DockingConfig`) turns
-it on; it engages when the car enters the funnel behind its goal and drives to the episode's
-end. Off by default: the paper's agent is the policy alone.
+a creep of mm/s; from an entry too close to the goal it first backs up to have that path
+(``DockingConfig.run_in``). ``ParkingConfig.docking`` (a
+:class:`~torchpark.config.DockingConfig`) turns it on; it engages when the car enters the
+funnel behind its goal and drives to the episode's end. Off by default: the paper's agent
+is the policy alone.
 """
 
 from __future__ import annotations
@@ -47,18 +49,30 @@ def in_funnel(error: GoalFrameError, cfg: DockingConfig) -> Tensor:
             & (error.lateral.abs() <= cfg.lateral) & (error.heading.abs() <= cfg.heading))
 
 
-def docking_action(error: GoalFrameError, cfg: DockingConfig, vehicle: VehicleConfig
-                   ) -> tuple[Tensor, Tensor]:
-    """The law's (v m/s, delta rad), each [...], within the vehicle's limits: towards the
-    goal, reversing once past it.
+def docking_action(error: GoalFrameError, backing: Tensor, cfg: DockingConfig,
+                   vehicle: VehicleConfig) -> tuple[Tensor, Tensor]:
+    """The law's (v m/s, delta rad), each [...], within the vehicle's limits: where
+    ``backing`` (bool [...]) is set, reversing at ``max_speed``; elsewhere towards the goal,
+    reversing once past it.
 
     Per metre of path, forwards e' = th and th' = tan(delta) / L; reversing, e' = -th and
     th' = -tan(delta) / L. tan(delta) = L (-k e - 2 sqrt(k) d th), d = +1 forwards and -1
     reversing, gives e'' = -k e - 2 sqrt(k) e' either way.
     """
-    direction = torch.where(error.remaining < 0.0, -1.0, 1.0)
+    direction = torch.where(backing | (error.remaining < 0.0), -1.0, 1.0)
     tan_delta = vehicle.wheelbase * (-cfg.gain * error.lateral
                                      - 2.0 * cfg.gain ** 0.5 * direction * error.heading)
     delta = torch.atan(tan_delta).clamp(-vehicle.max_steer, vehicle.max_steer)
     speed = (cfg.speed_gain * error.remaining.abs()).clamp(cfg.min_speed, cfg.max_speed)
+    speed = torch.where(backing, cfg.max_speed, speed)
     return direction * speed.clamp(max=vehicle.max_speed), delta
+
+
+def docking_phase(error: GoalFrameError, docking: Tensor, backing: Tensor, cfg: DockingConfig
+                  ) -> tuple[Tensor, Tensor]:
+    """The layer's next (docking, backing), bool [...], from the current ones and the errors:
+    it takes over on entering the funnel and keeps the wheel; it backs up from an entry less
+    than ``run_in`` m behind the goal until the goal is that far ahead, and never again."""
+    entered = ~docking & in_funnel(error, cfg)
+    short = error.remaining < cfg.run_in
+    return docking | entered, torch.where(entered, short, backing & short)

@@ -171,6 +171,7 @@ class ParkingEnv(EnvBase):
             steps=torch.zeros(n, dtype=torch.int64, device=dev),
             occupancy=torch.zeros(n, device=dev),
             docking=torch.zeros(n, dtype=torch.bool, device=dev),
+            backing=torch.zeros(n, dtype=torch.bool, device=dev),
         )
         self._observation = torch.zeros(n, self.obs_dim, device=dev)
 

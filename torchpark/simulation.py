@@ -13,7 +13,7 @@ import torch
 from torch import Tensor
 
 from torchpark.config import ParkingConfig
-from torchpark.docking import docking_action, goal_frame_error, in_funnel
+from torchpark.docking import docking_action, docking_phase, goal_frame_error
 from torchpark.geometry import BoxFrame, frames_separation
 from torchpark.lidar import lidar_scan
 from torchpark.lot import StartDraw, choose_start
@@ -45,7 +45,8 @@ class ParkingState(NamedTuple):
     (N, 3) its goal pose; present (N, M) float32, 1 where the obstacle exists (a parked car in
     that slot; walls always), else 0; steps (N,) int64 steps taken this episode; occupancy (N,)
     float32 the lot was drawn with; docking (N,) bool, whether the docking layer
-    (``ParkingConfig.docking``) drives this episode. ``present`` is float, not bool:
+    (``ParkingConfig.docking``) drives this episode, backing (N,) bool, whether it is in its
+    backing-up phase. ``present`` is float, not bool:
     compiled kernels loaded bool masks with branches that a random occupancy pattern
     mispredicted (45% slower).
     """
@@ -58,6 +59,7 @@ class ParkingState(NamedTuple):
     steps: Tensor
     occupancy: Tensor
     docking: Tensor
+    backing: Tensor
 
 
 class StepResult(NamedTuple):
@@ -119,12 +121,12 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
     step, where it costs nothing, so the caller can reject the step before keeping its state.
     """
     v, delta = clamp_action(action, cfg.vehicle)
-    docking = state.docking
+    docking, backing = state.docking, state.backing
     if cfg.docking is not None:
         # Once in the funnel, the docking law drives until the episode ends.
         error = goal_frame_error(state.pose, state.goal)
-        docking = docking | in_funnel(error, cfg.docking)
-        law_v, law_delta = docking_action(error, cfg.docking, cfg.vehicle)
+        docking, backing = docking_phase(error, docking, backing, cfg.docking)
+        law_v, law_delta = docking_action(error, backing, cfg.docking, cfg.vehicle)
         v = torch.where(docking, law_v, v)
         delta = torch.where(docking, law_delta, delta)
     pose = bicycle_step(state.pose, v, delta, cfg.vehicle)
@@ -136,7 +138,8 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
         braked, collision = collision, braked
         pose = torch.where(braked[:, None], state.pose, pose)
         v = torch.where(braked, 0.0, v)
-    state = state._replace(pose=pose, speed=v, steps=state.steps + 1, docking=docking)
+    state = state._replace(pose=pose, speed=v, steps=state.steps + 1, docking=docking,
+                           backing=backing)
     observation, cost = observe(state, world, cfg)
     success = is_success(cost, world.success_threshold)
     reward = parking_reward(cost, collision, success, braked, cfg.reward)
@@ -194,6 +197,7 @@ def reset_rows(state: ParkingState, observation: Tensor, mask: Tensor, goal_slot
         steps=torch.zeros_like(state.steps),
         occupancy=occupancy,
         docking=torch.zeros_like(state.docking),
+        backing=torch.zeros_like(state.backing),
     )
     state = _mux_rows(mask, fresh, state)
     new_observation, _ = observe(state, world, cfg)
