@@ -12,6 +12,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from torchrl.envs import TransformedEnv
 
 from torchpark import DockingConfig, LotConfig, ParkingConfig, ParkingEnv, RewardConfig
+from torchpark.docking import goal_frame_error, in_funnel
 from trainers.config import load_config
 from trainers.evaluate import COLUMNS, Episodes, evaluate, run_episodes
 from trainers.evaluate import main as evaluate_main
@@ -140,6 +141,30 @@ def test_braked_episodes_are_the_ones_that_collide_without_the_brake():
     plain, braked = run(False), run(True)
     assert 0 < int(plain.collision.sum()) < 64 and not plain.braked.any()
     assert torch.equal(braked.braked, plain.collision) and not braked.collision.any()
+
+
+def test_docked_counts_the_episodes_the_docking_layer_drove():
+    """Near-goal starts for half the lots, a funnel as wide as their box: the episodes that
+    start in it are docked, the uniform starts are not (zero actions: they stay put)."""
+    lot = LotConfig(near_goal_starts=0.5, near_goal_lateral=0.1, near_goal_heading=0.1)
+    funnel = DockingConfig(lateral=0.1, heading=0.1)
+
+    def run(layer: DockingConfig | None) -> tuple[Episodes, torch.Tensor]:
+        base = ParkingEnv(32, seed=6, config=ParkingConfig(lot=lot, docking=layer, max_steps=50))
+        starts = []
+
+        def policy(td):
+            if not starts:  # the first call sees the start poses
+                starts.append(in_funnel(goal_frame_error(base.state.pose, base.state.goal),
+                                        funnel))
+            return td.set("action", torch.zeros(32, 2))
+
+        return run_episodes(policy, TransformedEnv(base), 50), starts[0]
+
+    plain, _ = run(None)
+    docked, started_in_funnel = run(funnel)
+    assert not plain.docked.any()
+    assert torch.equal(docked.docked, started_in_funnel) and 0 < int(started_in_funnel.sum()) < 32
 
 
 def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
