@@ -1,20 +1,23 @@
 """Is the paper's success test reachable at all? The docking law alone, from near-goal starts.
 
-    python benchmarks/docking_reference.py [--envs 500] [--occupancies 0 0.9] [--gain 16]
+    python benchmarks/docking_reference.py [--envs 500] [--occupancies 0 0.9] [--no-brake]
 
 The success test ``C < 4e-4`` asks for about 1 mm, 0.1 deg and 4 mm/s at once. This script
 starts every episode in a box behind its goal (``LotConfig``'s near-goal poses: up to
 ``back`` m back along the slot axis, ``side`` m to either side, ``heading`` rad off) and lets
-the docking layer (``torchpark.docking``, a fixed two-gain feedback law, its funnel 6 m
-deep and as wide as the box) drive, in the paper's env otherwise (no brake, no held
-actions; the policy's action is ignored). It prints per box and occupancy the success
-(``C < 4e-4``) and collision rates of each env's first episode (1,000 steps), as a Markdown
-table. The law knows nothing of parked cars: its collisions are those of its own path.
+the docking layer (``torchpark.docking``, a fixed feedback law driving multi-point turns,
+its funnel 6 m deep and as wide as the box) drive, in the paper's env otherwise (no held
+actions; the policy's action is ignored), with the emergency brake under it unless
+``--no-brake``. It prints per box and occupancy the success (``C < 4e-4``), collision and
+braked rates of each env's first episode (1,000 steps), as a Markdown table. The law knows
+nothing of parked cars but what the brake tells it (it turns back when stopped); without
+the brake its collisions are those of its own path.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 
 import torch
 from torchrl.envs import TransformedEnv
@@ -22,35 +25,35 @@ from torchrl.envs import TransformedEnv
 from torchpark import DockingConfig, LotConfig, ParkingConfig, ParkingEnv
 from trainers.evaluate import run_episodes
 
-BOXES = [(1.5, 0.05, 0.05), (6.0, 0.1, 0.1), (6.0, 0.3, 0.2), (6.0, 0.5, 0.35), (6.0, 1.0, 0.6)]
+BOXES = [(1.5, 0.05, 0.05), (6.0, 0.1, 0.1), (6.0, 0.5, 0.35), (6.0, 1.0, 0.6), (6.0, 2.5, 1.6),
+         (6.0, 4.0, math.pi)]  # the last: DockingConfig's default funnel
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", type=int, default=500)
     parser.add_argument("--occupancies", type=float, nargs="+", default=[0.0, 0.9])
-    parser.add_argument("--gain", type=float, default=DockingConfig.gain, help="k, 1/m^2")
-    parser.add_argument("--run-in", type=float, default=DockingConfig.run_in,
-                        help="m; 0: no backing up")
+    parser.add_argument("--brake", action=argparse.BooleanOptionalAction, default=True,
+                        help="the emergency brake under the law")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     print("| start box: back (m), side (m), heading (rad) | occupancy | success (C < 4e-4) "
-          "| collision |")
-    print("|---|---:|---:|---:|")
+          "| collision | braked |")
+    print("|---|---:|---:|---:|---:|")
     for back, side, heading in BOXES:
         config = ParkingConfig(
             lot=LotConfig(near_goal_starts=1.0, near_goal_reach=back, near_goal_lateral=side,
                           near_goal_heading=heading),
-            docking=DockingConfig(lateral=side, heading=heading, gain=args.gain,
-                                  run_in=args.run_in))
+            docking=DockingConfig(lateral=side, heading=heading), emergency_brake=args.brake)
         for occupancy in args.occupancies:
             env = ParkingEnv(args.envs, seed=args.seed, config=config)
             env.occupancy = occupancy
             zeros = torch.zeros(args.envs, 2)  # ignored: every start is in the funnel
             run = run_episodes(lambda td, a=zeros: td.set("action", a), TransformedEnv(env),
                                config.max_steps)
-            print(f"| {back}, ±{side}, ±{heading} | {occupancy:.0%} | "
-                  f"{run.success.float().mean():.2f} | {run.collision.float().mean():.2f} |")
+            print(f"| {back}, ±{side}, ±{heading:.3g} | {occupancy:.0%} | "
+                  f"{run.success.float().mean():.2f} | {run.collision.float().mean():.2f} | "
+                  f"{run.braked.float().mean():.2f} |")
 
 
 if __name__ == "__main__":

@@ -5,8 +5,9 @@
 docs/lots.png: one lot at 0, 50 and 90 % occupancy (same goal and start, so only the parked
 cars differ). docs/rollout.gif: one episode of the committed policy (deterministic) at 40 %
 occupancy, drawn every step. docs/docking.png: the docking law alone (torchpark.docking)
-from 24 starts 0-6 m behind their goals, within 0.1 m and 0.1 rad, empty lot: lateral
-offset, heading error and the cost C against time, with the success threshold.
+from 24 starts in its default funnel at 50 % occupancy, with the emergency brake: the rear
+axle's path in the goal's frame (the multi-point turns), the heading error and the cost C
+against time, with the success threshold.
 """
 
 from __future__ import annotations
@@ -48,15 +49,20 @@ def rollout_animation(checkpoint: str, path: Path, occupancy: float = 0.4) -> No
         record_video(env, actor, path, max_steps=300, fps=20)
 
 
-def docking_picture(path: Path, episodes: int = 24, steps: int = 250) -> None:
+def docking_picture(path: Path, episodes: int = 24, steps: int = 1000,
+                    occupancy: float = 0.5) -> None:
+    docking = DockingConfig()
     config = ParkingConfig(
-        lot=LotConfig(near_goal_starts=1.0, near_goal_reach=6.0, near_goal_lateral=0.1,
-                      near_goal_heading=0.1),
-        docking=DockingConfig(reach=6.0, lateral=0.1, heading=0.1))
+        lot=LotConfig(near_goal_starts=1.0, near_goal_reach=docking.reach,
+                      near_goal_lateral=docking.lateral, near_goal_heading=docking.heading),
+        docking=docking, emergency_brake=True)
     env = ParkingEnv(episodes, seed=0, config=config)
+    env.occupancy = occupancy
     td = env.reset()
     live = torch.ones(episodes, dtype=torch.bool)
-    rows = []  # per step: |lateral| m, |heading| rad, C, live
+    error = goal_frame_error(env.state.pose, env.state.goal)
+    rows = [(error.remaining, error.lateral, error.heading.abs(), torch.full_like(live, 1.0),
+             live.clone())]  # per step: remaining m, lateral m, |heading| rad, C, live
     for _ in range(steps):
         td = env.step(td.set("action", torch.zeros(episodes, 2)))["next"]
         state = env.state
@@ -64,24 +70,33 @@ def docking_picture(path: Path, episodes: int = 24, steps: int = 250) -> None:
         dx, dy = (state.goal[:, :2] - state.pose[:, :2]).unbind(-1)
         cost = parking_cost(dx, dy, state.pose[:, 2], state.goal[:, 2], state.speed,
                             config.reward)
-        rows.append((error.lateral.abs(), error.heading.abs(), cost, live.clone()))
+        rows.append((error.remaining, error.lateral, error.heading.abs(), cost, live.clone()))
         live &= ~td["done"][:, 0]
-    time = [0.1 * (t + 1) for t in range(steps)]
+    remaining, lateral, heading, cost, alive = (torch.stack(c) for c in zip(*rows, strict=True))
+    time = torch.arange(steps + 1) * config.vehicle.dt
     matplotlib.use("Agg")
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6), sharex=True)
-    titles = ("|lateral offset| (m)", "|heading error| (rad)", "cost C")
-    for k, (ax, title) in enumerate(zip(axes, titles, strict=True)):
-        values = torch.stack([r[k] for r in rows]).clamp(min=1e-7)
-        alive = torch.stack([r[3] for r in rows])
-        for i in range(episodes):  # each episode until it ends
-            ax.plot([t for t, a in zip(time, alive[:, i], strict=True) if a],
-                    values[alive[:, i], i].numpy(), lw=0.8)
-        ax.set(yscale="log", title=title, xlabel="time (s)")
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
+    for i in range(episodes):  # each episode until it ends
+        a = alive[:, i]
+        line, = axes[0].plot(lateral[a, i], remaining[a, i], lw=0.8)
+        axes[0].plot(lateral[0, i], remaining[0, i], "o", ms=3, color=line.get_color())
+        axes[1].plot(time[a], heading[a, i].clamp(min=1e-7), lw=0.8, color=line.get_color())
+        axes[2].plot(time[a], cost[a, i].clamp(min=1e-7), lw=0.8, color=line.get_color())
+    slot = config.lot
+    mouth = slot.slot_length / 2.0 - config.vehicle.centre_offset  # goal axle to slot mouth
+    axes[0].plot([-slot.slot_width / 2, -slot.slot_width / 2, slot.slot_width / 2,
+                  slot.slot_width / 2], [mouth, mouth - slot.slot_length,
+                                         mouth - slot.slot_length, mouth], "k-", lw=1.2)
+    axes[0].set(title="rear axle in the goal's frame (o: start)", xlabel="lateral offset (m)",
+                ylabel="distance behind the goal (m)", aspect="equal")
+    axes[1].set(yscale="log", title="|heading error| (rad)", xlabel="time (s)")
+    axes[2].set(yscale="log", title="cost C", xlabel="time (s)")
     axes[2].axhline(config.reward.success_threshold, color="k", ls="--", lw=1,
                     label="success: C < 4e-4")
     axes[2].legend(loc="upper right")
-    fig.suptitle("The docking law alone, starts 0-6 m behind the goal, ±0.1 m, ±0.1 rad "
-                 "(empty lot; each line ends with its episode)")
+    fig.suptitle(f"The docking law alone from its funnel (0-{docking.reach:g} m behind the goal, "
+                 f"±{docking.lateral:g} m, any heading), {occupancy:.0%} occupancy, emergency "
+                 "brake; each line ends with its episode")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

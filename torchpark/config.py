@@ -149,30 +149,41 @@ class RewardConfig:
 @dataclass(frozen=True)
 class DockingConfig:
     """A docking layer under the policy (torchpark.docking): once the rear axle is in the
-    funnel behind its goal (0 to ``reach`` m back along the slot axis, within ``lateral`` m of
-    it, heading within ``heading`` rad of the goal's), a fixed feedback law drives for the
-    rest of the episode: tan(delta) = L (-gain e -+ 2 sqrt(gain) th) for lateral offset e and
-    heading error th (- forwards, + reversing; critically damped over 1 / sqrt(gain) m
-    travelled either way). Entering less than ``run_in`` m behind the goal, it first backs up
-    at max_speed until the goal is ``run_in`` m ahead (the errors settle on the way); then
-    v = clamp(speed_gain |s|, min_speed, max_speed) towards the goal, s m away along the axis.
+    funnel around its slot's approach (0 to ``reach`` m back along the slot axis from the
+    goal, within ``lateral`` m of it, heading within ``heading`` rad of the goal's), a fixed
+    feedback law drives for the rest of the episode: tan(delta) = L (-k e -+ 2 sqrt(k) th) for
+    lateral offset e and heading error th (- forwards, + reversing; critically damped over
+    1 / sqrt(k) m travelled either way), k = ``gain`` once settled (within
+    ``settled_lateral`` m and ``settled_heading`` rad), else ``forward_gain`` /
+    ``reverse_gain``. Settled, it drives in at v = clamp(speed_gain s, min_speed, max_speed),
+    s m from the goal; otherwise at max_speed. It reverses when the emergency brake stops it,
+    when past the goal, or when less than ``abort`` m from the goal without being settled,
+    and drives forwards again when braked or ``run_in`` m back.
     """
 
     reach: float = 6.0  # m
-    lateral: float = 0.1  # m
-    heading: float = 0.1  # rad
+    lateral: float = 4.0  # m
+    heading: float = math.pi  # rad: any heading
     gain: float = 16.0  # 1/m^2
+    forward_gain: float = 0.5  # 1/m^2
+    reverse_gain: float = 0.25  # 1/m^2
+    settled_lateral: float = 0.1  # m
+    settled_heading: float = 0.1  # rad
     speed_gain: float = 0.8  # 1/s
     min_speed: float = 1e-3  # m/s: the success test needs |v| well under 4 mm/s
     max_speed: float = 1.0  # m/s
-    run_in: float = 4.0  # m: the law settles the errors to ~1e-5 within ~4 m of path
+    abort: float = 0.5  # m
+    # m: reversing, in practice until the brake stops it; settled, the law brings the errors
+    # to ~1e-5 within ~4 m of path
+    run_in: float = 10.0
 
     def __post_init__(self) -> None:
-        for name in ("reach", "lateral", "heading", "gain", "speed_gain", "min_speed",
-                     "max_speed"):
+        for name in ("reach", "lateral", "heading", "gain", "forward_gain", "reverse_gain",
+                     "settled_lateral", "settled_heading", "speed_gain", "min_speed",
+                     "max_speed", "run_in"):
             _positive(f"DockingConfig.{name}", getattr(self, name))
-        _require(math.isfinite(self.run_in) and 0.0 <= self.run_in <= self.reach,
-                 "DockingConfig.run_in", f"in [0, reach = {self.reach}]", self.run_in)
+        _require(math.isfinite(self.abort) and 0.0 <= self.abort <= self.run_in,
+                 "DockingConfig.abort", f"in [0, run_in = {self.run_in}]", self.abort)
         _require(self.min_speed <= self.max_speed, "DockingConfig.min_speed",
                  f"<= max_speed = {self.max_speed}", self.min_speed)
 

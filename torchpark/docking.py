@@ -5,11 +5,12 @@ slot axis that is a linear control problem: per metre travelled, the lateral off
 rear axle changes by sin(th) and the heading error th by tan(delta) / L. The law
 tan(delta) = L (-k e - 2 sqrt(k) th) makes both decay, critically damped, over about
 1 / sqrt(k) m travelled, and the speed towards the goal falls with the distance left down to
-a creep of mm/s; from an entry too close to the goal it first backs up to have that path
-(``DockingConfig.run_in``). ``ParkingConfig.docking`` (a
-:class:`~torchpark.config.DockingConfig`) turns it on; it engages when the car enters the
-funnel behind its goal and drives to the episode's end. Off by default: the paper's agent
-is the policy alone.
+a creep of mm/s. Farther off the axis the steering saturates and one pass is not enough:
+the layer then drives a multi-point turn, reversing when the goal is too close (or the
+emergency brake stops it) and driving in again from a run-in, each pass lining the car up
+further. ``ParkingConfig.docking`` (a :class:`~torchpark.config.DockingConfig`) turns it
+on; it engages when the car enters the funnel around the slot's approach and drives to the
+episode's end. Off by default: the paper's agent is the policy alone.
 """
 
 from __future__ import annotations
@@ -49,30 +50,49 @@ def in_funnel(error: GoalFrameError, cfg: DockingConfig) -> Tensor:
             & (error.lateral.abs() <= cfg.lateral) & (error.heading.abs() <= cfg.heading))
 
 
-def docking_action(error: GoalFrameError, backing: Tensor, cfg: DockingConfig,
+def is_settled(error: GoalFrameError, cfg: DockingConfig) -> Tensor:
+    """Whether the car is lined up for the final approach, bool [...]: within
+    ``settled_lateral`` m and ``settled_heading`` rad of the slot axis."""
+    return (error.lateral.abs() < cfg.settled_lateral) & (error.heading.abs() < cfg.settled_heading)
+
+
+def docking_action(error: GoalFrameError, reversing: Tensor, cfg: DockingConfig,
                    vehicle: VehicleConfig) -> tuple[Tensor, Tensor]:
-    """The law's (v m/s, delta rad), each [...], within the vehicle's limits: where
-    ``backing`` (bool [...]) is set, reversing at ``max_speed``; elsewhere towards the goal,
-    reversing once past it.
+    """The law's (v m/s, delta rad), each [...], within the vehicle's limits: reversing at
+    ``max_speed`` where ``reversing`` (bool [...]) is set; elsewhere forwards, at
+    clamp(speed_gain s, min_speed, max_speed) once settled (s m left), else at max_speed.
 
     Per metre of path, forwards e' = th and th' = tan(delta) / L; reversing, e' = -th and
     th' = -tan(delta) / L. tan(delta) = L (-k e - 2 sqrt(k) d th), d = +1 forwards and -1
-    reversing, gives e'' = -k e - 2 sqrt(k) e' either way.
+    reversing, gives e'' = -k e - 2 sqrt(k) e' either way: with k = gain once settled, a
+    gentler forward_gain / reverse_gain (mostly saturated steering) before.
     """
-    direction = torch.where(backing | (error.remaining < 0.0), -1.0, 1.0)
-    tan_delta = vehicle.wheelbase * (-cfg.gain * error.lateral
-                                     - 2.0 * cfg.gain ** 0.5 * direction * error.heading)
+    direction = torch.where(reversing, -1.0, 1.0)
+    settled = is_settled(error, cfg)
+    gain = torch.where(settled, cfg.gain,
+                       torch.where(reversing, cfg.reverse_gain, cfg.forward_gain))
+    tan_delta = vehicle.wheelbase * (-gain * error.lateral
+                                     - 2.0 * gain.sqrt() * direction * error.heading)
     delta = torch.atan(tan_delta).clamp(-vehicle.max_steer, vehicle.max_steer)
-    speed = (cfg.speed_gain * error.remaining.abs()).clamp(cfg.min_speed, cfg.max_speed)
-    speed = torch.where(backing, cfg.max_speed, speed)
+    approach = (cfg.speed_gain * error.remaining).clamp(cfg.min_speed, cfg.max_speed)
+    speed = torch.where(settled & ~reversing, approach, cfg.max_speed)
     return direction * speed.clamp(max=vehicle.max_speed), delta
 
 
-def docking_phase(error: GoalFrameError, docking: Tensor, backing: Tensor, cfg: DockingConfig
-                  ) -> tuple[Tensor, Tensor]:
-    """The layer's next (docking, backing), bool [...], from the current ones and the errors:
-    it takes over on entering the funnel and keeps the wheel; it backs up from an entry less
-    than ``run_in`` m behind the goal until the goal is that far ahead, and never again."""
+def docking_phase(error: GoalFrameError, docking: Tensor, reversing: Tensor, braked: Tensor,
+                  cfg: DockingConfig) -> tuple[Tensor, Tensor]:
+    """The layer's next (docking, reversing), bool [...], from the current ones, the errors
+    and whether the last step was stopped by the emergency brake (``braked``).
+
+    It takes over on entering the funnel (driving forwards) and keeps the wheel. Forwards, it
+    turns to reverse when braked, past the goal, or less than ``abort`` m from the goal
+    without being settled; reversing, it turns forwards when braked or ``run_in`` m back:
+    a multi-point turn whose every pass lines the car up further.
+    """
     entered = ~docking & in_funnel(error, cfg)
-    short = error.remaining < cfg.run_in
-    return docking | entered, torch.where(entered, short, backing & short)
+    docking = docking | entered
+    forwards = ~reversing | entered
+    to_reverse = braked | (error.remaining < 0.0) | (
+        (error.remaining < cfg.abort) & ~is_settled(error, cfg))
+    to_forwards = braked | (error.remaining >= cfg.run_in)
+    return docking, docking & torch.where(forwards, to_reverse, ~to_forwards)

@@ -170,8 +170,9 @@ class ParkingEnv(EnvBase):
             present=torch.zeros(n, m, device=dev),
             steps=torch.zeros(n, dtype=torch.int64, device=dev),
             occupancy=torch.zeros(n, device=dev),
+            braked=torch.zeros(n, dtype=torch.bool, device=dev),
             docking=torch.zeros(n, dtype=torch.bool, device=dev),
-            backing=torch.zeros(n, dtype=torch.bool, device=dev),
+            reversing=torch.zeros(n, dtype=torch.bool, device=dev),
         )
         self._observation = torch.zeros(n, self.obs_dim, device=dev)
 

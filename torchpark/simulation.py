@@ -44,9 +44,10 @@ class ParkingState(NamedTuple):
     pose (N, 3) rear axle (x m, y m, psi rad); speed (N,) m/s; goal_slot (N,) int64; goal
     (N, 3) its goal pose; present (N, M) float32, 1 where the obstacle exists (a parked car in
     that slot; walls always), else 0; steps (N,) int64 steps taken this episode; occupancy (N,)
-    float32 the lot was drawn with; docking (N,) bool, whether the docking layer
-    (``ParkingConfig.docking``) drives this episode, backing (N,) bool, whether it is in its
-    backing-up phase. ``present`` is float, not bool:
+    float32 the lot was drawn with; braked (N,) bool, whether the emergency brake stopped the
+    last step; docking (N,) bool, whether the docking layer (``ParkingConfig.docking``)
+    drives this episode, reversing (N,) bool, whether it is reversing. ``present`` is float,
+    not bool:
     compiled kernels loaded bool masks with branches that a random occupancy pattern
     mispredicted (45% slower).
     """
@@ -58,8 +59,9 @@ class ParkingState(NamedTuple):
     present: Tensor
     steps: Tensor
     occupancy: Tensor
+    braked: Tensor
     docking: Tensor
-    backing: Tensor
+    reversing: Tensor
 
 
 class StepResult(NamedTuple):
@@ -121,12 +123,12 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
     step, where it costs nothing, so the caller can reject the step before keeping its state.
     """
     v, delta = clamp_action(action, cfg.vehicle)
-    docking, backing = state.docking, state.backing
+    docking, reversing = state.docking, state.reversing
     if cfg.docking is not None:
         # Once in the funnel, the docking law drives until the episode ends.
         error = goal_frame_error(state.pose, state.goal)
-        docking, backing = docking_phase(error, docking, backing, cfg.docking)
-        law_v, law_delta = docking_action(error, backing, cfg.docking, cfg.vehicle)
+        docking, reversing = docking_phase(error, docking, reversing, state.braked, cfg.docking)
+        law_v, law_delta = docking_action(error, reversing, cfg.docking, cfg.vehicle)
         v = torch.where(docking, law_v, v)
         delta = torch.where(docking, law_delta, delta)
     pose = bicycle_step(state.pose, v, delta, cfg.vehicle)
@@ -138,8 +140,8 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
         braked, collision = collision, braked
         pose = torch.where(braked[:, None], state.pose, pose)
         v = torch.where(braked, 0.0, v)
-    state = state._replace(pose=pose, speed=v, steps=state.steps + 1, docking=docking,
-                           backing=backing)
+    state = state._replace(pose=pose, speed=v, steps=state.steps + 1, braked=braked,
+                           docking=docking, reversing=reversing)
     observation, cost = observe(state, world, cfg)
     success = is_success(cost, world.success_threshold)
     reward = parking_reward(cost, collision, success, braked, cfg.reward)
@@ -196,8 +198,9 @@ def reset_rows(state: ParkingState, observation: Tensor, mask: Tensor, goal_slot
         present=present,
         steps=torch.zeros_like(state.steps),
         occupancy=occupancy,
+        braked=torch.zeros_like(state.braked),
         docking=torch.zeros_like(state.docking),
-        backing=torch.zeros_like(state.backing),
+        reversing=torch.zeros_like(state.reversing),
     )
     state = _mux_rows(mask, fresh, state)
     new_observation, _ = observe(state, world, cfg)

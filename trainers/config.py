@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 
 from omegaconf import OmegaConf
 
-from torchpark.config import DockingConfig
+from torchpark.config import DockingConfig, LotConfig
 from torchpark.curriculum import PAPER_LEVELS
 
 
@@ -29,6 +29,10 @@ class EnvConfig:
     # The probability that a training episode starts near its goal (LotConfig.near_goal_starts;
     # evaluation always draws the paper's uniform starts).
     near_goal_starts: float = 0.0
+    # The near-goal box: LotConfig.near_goal_reach / _lateral / _heading (m, m, rad).
+    near_goal_reach: float = LotConfig.near_goal_reach
+    near_goal_lateral: float = LotConfig.near_goal_lateral
+    near_goal_heading: float = LotConfig.near_goal_heading
     # None: the policy commands (v, delta) directly (the paper). A list: it acts in [-1, 1]
     # and the env receives (5 m/s, 0.785 rad) * sign(u) |u| ** exponents
     # (torchpark.PowerActionMap), e.g. [3, 1] for fine speed control near standstill.
@@ -41,9 +45,10 @@ class EnvConfig:
     # RewardConfig.brake_penalty: added to the reward of a step the brake stops (training).
     brake_penalty: float = 0.0
     # ParkingConfig.docking: a fixed feedback law (torchpark.docking) drives once the car is
-    # in the funnel behind its goal, within docking_lateral m and docking_heading rad of the
-    # slot axis (training and evaluation).
+    # in the funnel behind its goal: 0 to docking_reach m back along the slot axis, within
+    # docking_lateral m and docking_heading rad of it (training and evaluation).
     docking: bool = False
+    docking_reach: float = DockingConfig.reach
     docking_lateral: float = DockingConfig.lateral
     docking_heading: float = DockingConfig.heading
 
@@ -122,13 +127,14 @@ def _fast() -> TrainConfig:
     """What a batched env allows: many compiled envs, short rollouts, a few epochs, and the
     agent-side aids that made the task learnable here (all documented in the README): each
     action held for 0.5 s (5 steps of dt), a cubic speed map, the goal seen from the car,
-    half the training starts near the goal, an emergency brake under the policy, a
-    state-dependent std, gamma 0.995, rewards x0.1 for the critic. Same reward, success test
-    (4e-4) and 6-phase curriculum (2M frames = steps of dt per level) as the paper."""
+    half the training starts near the goal, an emergency brake and a docking layer under
+    the policy, a state-dependent std, gamma 0.995, rewards x0.1 for the critic. Same
+    reward, success test (4e-4) and 6-phase curriculum (2M frames = steps of dt per level)
+    as the paper."""
     return TrainConfig(
         env=EnvConfig(num_envs=1024, compile_step=True, goal_features=True, action_repeat=5,
                       action_exponents=[3.0, 1.0], near_goal_starts=0.5,
-                      emergency_brake=True),
+                      emergency_brake=True, docking=True),
         collector=CollectorConfig(frames_per_batch=1024 * 32 * 5),
         loss=LossConfig(gamma=0.995, mini_batch_size=1024, ppo_epochs=8, reward_scale=0.1),
         model=ModelConfig(hidden=[256, 256], init_log_std=-1.0, state_dependent_std=True),

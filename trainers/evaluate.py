@@ -140,10 +140,11 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int) -> Episodes:
         for step in range(1, max_steps + 1):
             td = env.step(actor(td))
             nxt = td["next"]
-            # Only the brake stops a car that was told to move (a held action that is braked
-            # once is braked at its last step too: same pose, same action).
-            stopped = (base.state.speed == 0) & (td["action"][:, 0] != 0)
-            braked |= ~ended & stopped.cpu()
+            # The brake's flag is the last step of dt's: a policy's held action that is
+            # braked once is braked at its last step too (same pose, same action); the
+            # docking law turns back when braked, so one of its brakes inside a held action
+            # can go uncounted.
+            braked |= ~ended & base.state.braked.cpu()
             first = nxt["done"][:, 0].cpu() & ~ended
             final[first] = nxt["observation"][:, :7].cpu()[first]
             for key in outcome:

@@ -58,7 +58,8 @@ def parking_config(cfg: TrainConfig, training: bool) -> ParkingConfig:
     paper's."""
     config = ParkingConfig(max_steps=cfg.env.max_steps, action_repeat=cfg.env.action_repeat,
                            emergency_brake=cfg.env.emergency_brake,
-                           docking=DockingConfig(lateral=cfg.env.docking_lateral,
+                           docking=DockingConfig(reach=cfg.env.docking_reach,
+                                                 lateral=cfg.env.docking_lateral,
                                                  heading=cfg.env.docking_heading)
                            if cfg.env.docking else None)
     if not training:
@@ -66,7 +67,10 @@ def parking_config(cfg: TrainConfig, training: bool) -> ParkingConfig:
     return dataclasses.replace(
         config, reward=RewardConfig(success_threshold=cfg.env.success_threshold,
                                     brake_penalty=cfg.env.brake_penalty),
-        lot=LotConfig(near_goal_starts=cfg.env.near_goal_starts))
+        lot=LotConfig(near_goal_starts=cfg.env.near_goal_starts,
+                      near_goal_reach=cfg.env.near_goal_reach,
+                      near_goal_lateral=cfg.env.near_goal_lateral,
+                      near_goal_heading=cfg.env.near_goal_heading))
 
 
 def make_env(cfg: TrainConfig) -> TransformedEnv:
