@@ -366,7 +366,7 @@ def test_emergency_brake_never_collides_and_holds_the_pose():
 
 
 def test_brake_penalty_is_added_on_braked_steps_only():
-    def drive(penalty: float) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+    def drive(penalty: float) -> tuple[list[torch.Tensor], list[torch.Tensor], torch.Tensor]:
         config = ParkingConfig(occupancy=0.9, emergency_brake=True,
                                reward=RewardConfig(brake_penalty=penalty))
         env = ParkingEnv(64, seed=2, config=config)
@@ -377,10 +377,12 @@ def test_brake_penalty_is_added_on_braked_steps_only():
             td = env.step(td.set("action", action))["next"]
             rewards.append(td["reward"][:, 0])
             braked.append(env.state.speed == 0)  # full throttle: speed 0 only when braked
-        return rewards, braked
+            assert torch.equal(env.state.braked, braked[-1])
+        return rewards, braked, env.state.brakes
 
-    plain, braked = drive(0.0)
-    penalised, same = drive(-3.0)
+    plain, braked, brakes = drive(0.0)
+    penalised, same, _ = drive(-3.0)
+    assert torch.equal(brakes, torch.stack(braked).sum(0))  # the episode's count
     assert all(torch.equal(a, b) for a, b in zip(braked, same, strict=True))
     for r0, r1, b in zip(plain, penalised, braked, strict=True):
         assert torch.allclose(r1, r0 + torch.where(b, -3.0, 0.0))

@@ -171,6 +171,7 @@ class ParkingEnv(EnvBase):
             steps=torch.zeros(n, dtype=torch.int64, device=dev),
             occupancy=torch.zeros(n, device=dev),
             braked=torch.zeros(n, dtype=torch.bool, device=dev),
+            brakes=torch.zeros(n, dtype=torch.int64, device=dev),
             docking=torch.zeros(n, dtype=torch.bool, device=dev),
             reversing=torch.zeros(n, dtype=torch.bool, device=dev),
         )

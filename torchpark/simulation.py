@@ -45,10 +45,10 @@ class ParkingState(NamedTuple):
     (N, 3) its goal pose; present (N, M) float32, 1 where the obstacle exists (a parked car in
     that slot; walls always), else 0; steps (N,) int64 steps taken this episode; occupancy (N,)
     float32 the lot was drawn with; braked (N,) bool, whether the emergency brake stopped the
-    last step; docking (N,) bool, whether the docking layer (``ParkingConfig.docking``)
-    drives this episode, reversing (N,) bool, whether it is reversing. ``present`` is float,
-    not bool:
-    compiled kernels loaded bool masks with branches that a random occupancy pattern
+    last step, brakes (N,) int64 how many steps it stopped this episode; docking (N,) bool,
+    whether the docking layer (``ParkingConfig.docking``) drives this episode, reversing (N,)
+    bool, whether it is reversing. ``present`` is float, not bool: compiled kernels loaded
+    bool masks with branches that a random occupancy pattern
     mispredicted (45% slower).
     """
 
@@ -60,6 +60,7 @@ class ParkingState(NamedTuple):
     steps: Tensor
     occupancy: Tensor
     braked: Tensor
+    brakes: Tensor
     docking: Tensor
     reversing: Tensor
 
@@ -141,7 +142,8 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
         pose = torch.where(braked[:, None], state.pose, pose)
         v = torch.where(braked, 0.0, v)
     state = state._replace(pose=pose, speed=v, steps=state.steps + 1, braked=braked,
-                           docking=docking, reversing=reversing)
+                           brakes=state.brakes + braked.long(), docking=docking,
+                           reversing=reversing)
     observation, cost = observe(state, world, cfg)
     success = is_success(cost, world.success_threshold)
     reward = parking_reward(cost, collision, success, braked, cfg.reward)
@@ -199,6 +201,7 @@ def reset_rows(state: ParkingState, observation: Tensor, mask: Tensor, goal_slot
         steps=torch.zeros_like(state.steps),
         occupancy=occupancy,
         braked=torch.zeros_like(state.braked),
+        brakes=torch.zeros_like(state.brakes),
         docking=torch.zeros_like(state.docking),
         reversing=torch.zeros_like(state.reversing),
     )

@@ -80,8 +80,9 @@ class Episodes:
     their last pose after their end); final: (N, 7) the last observation's [dx, dy, cos psi,
     sin psi, v, cos alpha, sin alpha]; length: env steps taken (an index into ``poses``);
     steps: steps of dt taken (``repeat`` per env step when the env holds its actions);
-    braked: the emergency brake stopped at least one of the episode's steps (each one a
-    collision in the paper's env, which has no brake); docked: the docking layer (when on)
+    braked: the emergency brake stopped at least one of the episode's steps of dt (each one
+    a collision in the paper's env, which has no brake; with the docking layer, the law's
+    stops count too); docked: the docking layer (when on)
     had taken over by the episode's end.
     """
 
@@ -140,17 +141,13 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int) -> Episodes:
         for step in range(1, max_steps + 1):
             td = env.step(actor(td))
             nxt = td["next"]
-            # The brake's flag is the last step of dt's: a policy's held action that is
-            # braked once is braked at its last step too (same pose, same action); the
-            # docking law turns back when braked, so one of its brakes inside a held action
-            # can go uncounted.
-            braked |= ~ended & base.state.braked.cpu()
             first = nxt["done"][:, 0].cpu() & ~ended
             final[first] = nxt["observation"][:, :7].cpu()[first]
             for key in outcome:
                 outcome[key] |= first & nxt[key][:, 0].cpu()
             length[first] = step
             docked[first] = base.state.docking.cpu()[first]
+            braked[first] = base.state.brakes.cpu()[first] > 0
             steps[first] = base.state.steps.cpu()[first].float()
             poses.append(torch.where(ended[:, None], poses[-1], base.state.pose.cpu()))
             ended |= first
