@@ -59,18 +59,21 @@ def docking_picture(path: Path, episodes: int = 24, steps: int = 1000,
     env = ParkingEnv(episodes, seed=0, config=config)
     env.occupancy = occupancy
     td = env.reset()
-    live = torch.ones(episodes, dtype=torch.bool)
-    error = goal_frame_error(env.state.pose, env.state.goal)
-    rows = [(error.remaining, error.lateral, error.heading.abs(), torch.full_like(live, 1.0),
-             live.clone())]  # per step: remaining m, lateral m, |heading| rad, C, live
-    for _ in range(steps):
-        td = env.step(td.set("action", torch.zeros(episodes, 2)))["next"]
+
+    def row(live: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """remaining m, lateral m, |heading| rad, C, live, (episodes,) each."""
         state = env.state
         error = goal_frame_error(state.pose, state.goal)
         dx, dy = (state.goal[:, :2] - state.pose[:, :2]).unbind(-1)
         cost = parking_cost(dx, dy, state.pose[:, 2], state.goal[:, 2], state.speed,
                             config.reward)
-        rows.append((error.remaining, error.lateral, error.heading.abs(), cost, live.clone()))
+        return error.remaining, error.lateral, error.heading.abs(), cost, live.clone()
+
+    live = torch.ones(episodes, dtype=torch.bool)
+    rows = [row(live)]
+    for _ in range(steps):
+        td = env.step(td.set("action", torch.zeros(episodes, 2)))["next"]
+        rows.append(row(live))
         live &= ~td["done"][:, 0]
     remaining, lateral, heading, cost, alive = (torch.stack(c) for c in zip(*rows, strict=True))
     time = torch.arange(steps + 1) * config.vehicle.dt

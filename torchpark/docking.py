@@ -21,6 +21,7 @@ import torch
 from torch import Tensor
 
 from torchpark.config import DockingConfig, VehicleConfig
+from torchpark.geometry import wrap_angle
 
 
 class GoalFrameError(NamedTuple):
@@ -38,9 +39,8 @@ def goal_frame_error(pose: Tensor, goal: Tensor) -> GoalFrameError:
     dx = goal[..., 0] - pose[..., 0]
     dy = goal[..., 1] - pose[..., 1]
     cos_a, sin_a = torch.cos(goal[..., 2]), torch.sin(goal[..., 2])
-    turn = pose[..., 2] - goal[..., 2]
     return GoalFrameError(cos_a * dx + sin_a * dy, sin_a * dx - cos_a * dy,
-                          torch.atan2(torch.sin(turn), torch.cos(turn)))
+                          wrap_angle(pose[..., 2] - goal[..., 2]))
 
 
 def in_funnel(error: GoalFrameError, cfg: DockingConfig) -> Tensor:

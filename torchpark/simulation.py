@@ -48,8 +48,7 @@ class ParkingState(NamedTuple):
     last step, brakes (N,) int64 how many steps it stopped this episode; docking (N,) bool,
     whether the docking layer (``ParkingConfig.docking``) drives this episode, reversing (N,)
     bool, whether it is reversing. ``present`` is float, not bool: compiled kernels loaded
-    bool masks with branches that a random occupancy pattern
-    mispredicted (45% slower).
+    bool masks with branches that a random occupancy pattern mispredicted (45% slower).
     """
 
     pose: Tensor
