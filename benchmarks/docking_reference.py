@@ -1,6 +1,7 @@
 """Is the paper's success test reachable at all? The docking law alone, from near-goal starts.
 
     python benchmarks/docking_reference.py [--envs 500] [--occupancies 0 0.9] [--no-brake]
+        [--steer-clear 5]
 
 The success test ``C < 4e-4`` asks for about 1 mm, 0.1 deg and 4 mm/s at once. This script
 starts every episode in a box behind its goal (``LotConfig``'s near-goal poses: up to
@@ -8,10 +9,11 @@ starts every episode in a box behind its goal (``LotConfig``'s near-goal poses: 
 the docking layer (``torchpark.docking``, a fixed feedback law driving multi-point turns,
 its funnel 6 m deep and as wide as the box) drive, in the paper's env otherwise (no held
 actions; the policy's action is ignored), with the emergency brake under it unless
-``--no-brake``. It prints per box and occupancy the success (``C < 4e-4``), collision and
+``--no-brake``, steering clear over ``--steer-clear`` angles (``ParkingConfig.steer_clear``;
+0: the brake only stops). It prints per box and occupancy the success (``C < 4e-4``), collision and
 braked rates of each env's first episode (1,000 steps), as a Markdown table. The law knows
-nothing of parked cars but what the brake tells it (it turns back when stopped); without
-the brake its collisions are those of its own path.
+nothing of parked cars but what the brake does (it turns back when stopped); without the
+brake its collisions are those of its own path.
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ def main() -> None:
     parser.add_argument("--occupancies", type=float, nargs="+", default=[0.0, 0.9])
     parser.add_argument("--brake", action=argparse.BooleanOptionalAction, default=True,
                         help="the emergency brake under the law")
+    parser.add_argument("--steer-clear", type=int, default=5,
+                        help="steering angles the brake tries before stopping (0: it stops)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     print("| start box: back (m), side (m), heading (rad) | occupancy | success (C < 4e-4) "
@@ -43,8 +47,9 @@ def main() -> None:
     for back, side, heading in BOXES:
         config = ParkingConfig(
             lot=LotConfig(near_goal_starts=1.0, near_goal_reach=back, near_goal_lateral=side,
-                          near_goal_heading=heading),
-            docking=DockingConfig(lateral=side, heading=heading), emergency_brake=args.brake)
+                          near_goal_heading=heading, near_goal_candidates=32),
+            docking=DockingConfig(lateral=side, heading=heading), emergency_brake=args.brake,
+            steer_clear=args.steer_clear if args.brake else 0)
         for occupancy in args.occupancies:
             env = ParkingEnv(args.envs, seed=args.seed, config=config)
             env.occupancy = occupancy

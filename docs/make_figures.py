@@ -54,8 +54,9 @@ def docking_picture(path: Path, episodes: int = 24, steps: int = 1000,
     docking = DockingConfig()
     config = ParkingConfig(
         lot=LotConfig(near_goal_starts=1.0, near_goal_reach=docking.reach,
-                      near_goal_lateral=docking.lateral, near_goal_heading=docking.heading),
-        docking=docking, emergency_brake=True)
+                      near_goal_lateral=docking.lateral, near_goal_heading=docking.heading,
+                      near_goal_candidates=32),
+        docking=docking, emergency_brake=True, steer_clear=5)
     env = ParkingEnv(episodes, seed=0, config=config)
     env.occupancy = occupancy
     td = env.reset()
@@ -99,7 +100,7 @@ def docking_picture(path: Path, episodes: int = 24, steps: int = 1000,
     axes[2].legend(loc="upper right")
     fig.suptitle(f"The docking law alone from its funnel (0-{docking.reach:g} m behind the goal, "
                  f"±{docking.lateral:g} m, any heading), {occupancy:.0%} occupancy, emergency "
-                 "brake; each line ends with its episode")
+                 "brake steering clear; each line ends with its episode")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -19,7 +19,8 @@ from torchpark import (
     ParkingEnv,
     RewardConfig,
 )
-from torchpark.simulation import ParkingState
+from torchpark.simulation import ParkingState, touches_obstacle
+from torchpark.vehicle import bicycle_step, vehicle_frame
 
 
 def place(env: ParkingEnv, pose: torch.Tensor, rows: torch.Tensor | slice = slice(None)) -> None:
@@ -264,7 +265,7 @@ def test_collector_auto_resets_and_keeps_the_extra_keys():
     assert batch.shape == (16, 25)
     nxt = batch["next"]
     assert nxt["done"].any()  # truncation after 20 steps at the latest
-    for key in ("success", "collision", "occupancy"):
+    for key in ("success", "collision", "braked", "occupancy"):
         assert key in nxt.keys()
     assert (nxt["occupancy"] == 0.8).all()
     # Episodes restart after done: the step counter implied by is_init matches.
@@ -275,7 +276,9 @@ def test_collector_auto_resets_and_keeps_the_extra_keys():
     ParkingConfig(),
     ParkingConfig(lot=LotConfig(near_goal_starts=0.5), docking=DockingConfig(lateral=1.0,
                                                                               heading=0.6)),
-], ids=["paper", "docking"])
+    ParkingConfig(occupancy=0.9, emergency_brake=True, steer_clear=5,
+                  lot=LotConfig(near_goal_starts=0.5), docking=DockingConfig()),
+], ids=["paper", "docking", "steer-clear"])
 def test_compiled_step_is_one_graph_and_matches_eager(config):
     """compile_step=True compiles step and reset with fullgraph=True: any graph break raises."""
     actions = random_actions(64, 40, 9)
@@ -363,6 +366,57 @@ def test_emergency_brake_never_collides_and_holds_the_pose():
         td = plain.step(td.set("action", action))["next"]
         hits += int(td["collision"].sum())
     assert hits > 0  # the same drive without the brake collides
+
+
+def test_steer_clear_takes_the_clear_steering_nearest_the_commanded_else_stops():
+    """Random actions in dense lots, every colliding step checked against a search over the
+    five angles: the step is taken at the clear angle nearest the commanded one, at the
+    commanded speed; with none clear the car stops; either way it counts as braked."""
+    env = ParkingEnv(64, seed=2, config=ParkingConfig(occupancy=0.9, emergency_brake=True,
+                                                      steer_clear=5))
+    td = env.reset()
+    generator = torch.Generator().manual_seed(0)
+    spread = torch.linspace(-0.785, 0.785, 5)
+    limits = torch.tensor([5.0, 0.785])
+    vehicle = env.config.vehicle
+    steered = stopped = 0
+    for _ in range(60):
+        action = (torch.rand(64, 2, generator=generator) * 2 - 1) * limits
+        before, brakes = env.state.pose.clone(), env.state.brakes.clone()
+        # Commanded angle first, then the five: (64, 6) would-be collisions.
+        deltas = torch.cat((action[:, 1:], spread.expand(64, 5)), dim=1)
+        poses = bicycle_step(before[:, None].expand(64, 6, 3), action[:, :1].expand(64, 6),
+                             deltas, vehicle)
+        hits = touches_obstacle(vehicle_frame(poses, vehicle), env._world,
+                                env.state.present[:, None])
+        td = env.step(td.set("action", action))["next"]
+        assert not td["collision"].any()
+        assert torch.equal(td["braked"][:, 0], env.state.braked)
+        for row in range(64):
+            if not hits[row, 0]:
+                expected = bicycle_step(before[row], action[row, 0], action[row, 1], vehicle)
+                assert torch.equal(env.state.pose[row], expected)
+                assert env.state.brakes[row] == brakes[row]
+                continue
+            assert env.state.brakes[row] == brakes[row] + 1
+            clear = [d for d, hit in zip(spread, hits[row, 1:], strict=True) if not hit]
+            if clear:
+                nearest = min(clear, key=lambda d: abs(float(d - action[row, 1])))
+                expected = bicycle_step(before[row], action[row, 0], nearest, vehicle)
+                assert torch.allclose(env.state.pose[row], expected, atol=1e-6)
+                assert env.state.speed[row] == action[row, 0] and not env.state.braked[row]
+                steered += 1
+            else:
+                assert torch.equal(env.state.pose[row], before[row])
+                assert env.state.speed[row] == 0 and env.state.braked[row]
+                stopped += 1
+    assert steered > 20 and stopped > 5
+
+
+@pytest.mark.parametrize("value, brake", [(1, True), (-1, True), (True, True), (5, False)])
+def test_bad_steer_clear_raises(value, brake):
+    with pytest.raises(ValueError, match=r"ParkingConfig\.steer_clear"):
+        ParkingConfig(emergency_brake=brake, steer_clear=value)
 
 
 def test_brake_penalty_is_added_on_braked_steps_only():

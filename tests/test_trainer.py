@@ -13,10 +13,11 @@ from torchrl.envs import TransformedEnv
 
 from torchpark import DockingConfig, LotConfig, ParkingConfig, ParkingEnv, RewardConfig
 from torchpark.docking import goal_frame_error, in_funnel
+from torchpark.features import GOAL_FEATURES
 from trainers.config import load_config
 from trainers.evaluate import COLUMNS, Episodes, evaluate, run_episodes
 from trainers.evaluate import main as evaluate_main
-from trainers.ppo import main, parking_config, train
+from trainers.ppo import main, make_env, parking_config, train
 
 TAGS = {
     "episode/reward", "episode/length", "episode/success_rate", "episode/collision_rate",
@@ -170,13 +171,14 @@ def test_docked_counts_the_episodes_the_docking_layer_drove():
 def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     """Every training option off the paper's path at once: held actions, the cubic speed map,
     near-goal starts, the emergency brake, a state-dependent std, the success curriculum,
-    the docking layer."""
+    the docking layer, the brake steering clear and the policy seeing it."""
     cfg = load_config("smoke", [
         f"logger.log_dir={tmp_path}", "env.action_repeat=2", "env.action_exponents=[3.0,1.0]",
         "env.near_goal_starts=0.5", "env.emergency_brake=true", "env.goal_features=true",
         "model.state_dependent_std=true", "collector.frames_per_batch=2048",
         "collector.total_frames=4096", "curriculum.success_start=1000.0", "env.brake_penalty=-1.0",
         "curriculum.success_window=1024", "env.docking=true", "env.docking_lateral=1.0",
+        "env.steer_clear=5", "env.observe_brake=true",
     ])
     final = train(cfg)
     ckpt = torch.load(final, weights_only=False)
@@ -198,14 +200,32 @@ def test_training_aids_stay_out_of_the_evaluation_env():
     cfg = load_config("smoke", ["env.success_threshold=0.1", "env.brake_penalty=-1.0",
                                 "env.near_goal_starts=0.5", "env.emergency_brake=true",
                                 "env.action_repeat=2", "env.docking=true",
-                                "env.docking_lateral=0.3"])
+                                "env.docking_lateral=0.3", "env.steer_clear=5"])
     training, evaluation = parking_config(cfg, True), parking_config(cfg, False)
     assert (training.reward.success_threshold, training.reward.brake_penalty,
             training.lot.near_goal_starts) == (0.1, -1.0, 0.5)
     assert evaluation.reward == RewardConfig() and evaluation.lot == LotConfig()
     for config in (training, evaluation):  # what the agent is stays
-        assert config.emergency_brake and config.action_repeat == 2
+        assert config.emergency_brake and config.action_repeat == 2 and config.steer_clear == 5
         assert config.docking == DockingConfig(lateral=0.3)
+
+
+def test_observe_brake_appends_the_brake_flag_to_the_policy_input():
+    cfg = load_config("smoke", ["env.emergency_brake=true", "env.goal_features=true",
+                                "env.observe_brake=true", "env.num_envs=64"])
+    env = make_env(cfg)
+    env.base_env.occupancy = 0.9
+    td = env.reset()
+    features = GOAL_FEATURES + env.base_env.obs_dim
+    assert env.observation_spec["observation_policy"].shape == (64, features + 1)
+    seen = torch.zeros(64, dtype=torch.bool)
+    for _ in range(40):  # full throttle ends against something in most lots
+        td = env.step(td.set("action", torch.tensor([[5.0, 0.3]]).expand(64, 2)))["next"]
+        flag = td["observation_policy"][:, -1]
+        assert torch.equal(flag, td["braked"][:, 0].float())
+        assert torch.equal(td["braked"][:, 0], env.base_env.state.braked)
+        seen |= td["braked"][:, 0]
+    assert seen.any()
 
 
 def test_action_repeat_must_divide_the_batch():

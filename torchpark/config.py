@@ -206,6 +206,10 @@ class ParkingConfig:
     # names one): a step whose new pose would touch a parked car or a wall is not taken, the
     # car stays where it is with speed 0, so no collision can happen.
     emergency_brake: bool = False
+    # With the brake, 0: it stops such a step. k >= 2: it first tries k steering angles evenly
+    # spread over the vehicle's range at the commanded speed, and takes the step with the
+    # clear one nearest the commanded angle; it stops only when none is clear.
+    steer_clear: int = 0
     # A docking layer under the policy, off by default (the paper's "future work" names an
     # MPC layer under the RL policy): see DockingConfig.
     docking: DockingConfig | None = None
@@ -218,6 +222,11 @@ class ParkingConfig:
         _require(isinstance(self.action_repeat, int) and self.action_repeat >= 1,
                  "ParkingConfig.action_repeat", "an int >= 1", self.action_repeat)
         check_occupancy(self.occupancy, "ParkingConfig.occupancy")
+        _require(isinstance(self.steer_clear, int) and not isinstance(self.steer_clear, bool)
+                 and (self.steer_clear == 0 or self.steer_clear >= 2),
+                 "ParkingConfig.steer_clear", "0 or an int >= 2", self.steer_clear)
+        _require(self.steer_clear == 0 or self.emergency_brake, "ParkingConfig.steer_clear",
+                 "0 without emergency_brake", self.steer_clear)
 
 
 def check_occupancy(value: float, name: str = "occupancy") -> float:

@@ -44,8 +44,9 @@ class ParkingEnv(EnvBase):
     Actions (N, 2) = (v m/s, delta rad) are clamped to [-max_speed, max_speed] and
     [-max_steer, max_steer] (documented behaviour); a non-finite action raises ValueError.
     Outputs per step: observation (N, 7 + n_rays) float32; reward, done, terminated, truncated,
-    success, collision (N, 1); occupancy (N, 1) float32, the occupancy the current lot was drawn
-    with. Setting :attr:`occupancy` applies to lots drawn at later resets. With
+    success, collision (N, 1); braked (N, 1) bool, whether the emergency brake stopped the last
+    step of dt; occupancy (N, 1) float32, the occupancy the current lot was drawn with.
+    Setting :attr:`occupancy` applies to lots drawn at later resets. With
     ``config.action_repeat = k`` each step holds the action for up to k steps of ``dt``
     (stopping at the one that ends the episode) and returns the sum of their rewards.
     """
@@ -139,6 +140,7 @@ class ParkingEnv(EnvBase):
             observation=Unbounded(shape=(n, self.obs_dim), dtype=torch.float32, device=dev),
             success=flag(),
             collision=flag(),
+            braked=flag(),
             occupancy=Bounded(low=0.0, high=1.0, shape=(n, 1), dtype=torch.float32, device=dev),
             shape=(n,),
             device=dev,
@@ -243,7 +245,8 @@ class ParkingEnv(EnvBase):
         return TensorDict(
             {
                 "observation": self._observation,
-                "success": no, "collision": no.clone(), "occupancy": self._state.occupancy[:, None],
+                "success": no, "collision": no.clone(), "braked": no.clone(),
+                "occupancy": self._state.occupancy[:, None],
                 "done": no.clone(), "terminated": no.clone(), "truncated": no.clone(),
             },
             batch_size=self.batch_size, device=dev,
@@ -263,6 +266,7 @@ class ParkingEnv(EnvBase):
             state, out = self._merge_fn(state, out, *self._step_fn(state, action)[:2])
         self._state, self._observation = state, out.observation
         return TensorDict(
-            {**out._asdict(), "occupancy": self._state.occupancy[:, None]},
+            {**out._asdict(), "occupancy": self._state.occupancy[:, None],
+             "braked": self._state.braked[:, None]},
             batch_size=self.batch_size, device=self.device,
         )

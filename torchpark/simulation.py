@@ -45,10 +45,11 @@ class ParkingState(NamedTuple):
     (N, 3) its goal pose; present (N, M) float32, 1 where the obstacle exists (a parked car in
     that slot; walls always), else 0; steps (N,) int64 steps taken this episode; occupancy (N,)
     float32 the lot was drawn with; braked (N,) bool, whether the emergency brake stopped the
-    last step, brakes (N,) int64 how many steps it stopped this episode; docking (N,) bool,
-    whether the docking layer (``ParkingConfig.docking``) drives this episode, reversing (N,)
-    bool, whether it is reversing. ``present`` is float, not bool: compiled kernels loaded
-    bool masks with branches that a random occupancy pattern mispredicted (45% slower).
+    last step, brakes (N,) int64 how many steps it stopped or steered (``steer_clear``) this
+    episode; docking (N,) bool, whether the docking layer (``ParkingConfig.docking``) drives
+    this episode, reversing (N,) bool, whether it is reversing. ``present`` is float, not
+    bool: compiled kernels loaded bool masks with branches that a random occupancy pattern
+    mispredicted (45% slower).
     """
 
     pose: Tensor
@@ -133,15 +134,32 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
         delta = torch.where(docking, law_delta, delta)
     pose = bicycle_step(state.pose, v, delta, cfg.vehicle)
     collision = touches_obstacle(vehicle_frame(pose, cfg.vehicle), world, state.present)
-    braked = torch.zeros_like(collision)
+    braked = intervened = torch.zeros_like(collision)
     if cfg.emergency_brake:
-        # Keep the old pose where the new one would collide. The old pose is collision-free
-        # (a start is, and so is every pose a braked step keeps), so nothing collides.
+        intervened = collision
+        if cfg.steer_clear:
+            # The same speed at other steering angles: the clear one nearest the commanded.
+            n, k = v.shape[0], cfg.steer_clear
+            spread = torch.linspace(-cfg.vehicle.max_steer, cfg.vehicle.max_steer, k,
+                                    device=v.device)
+            tries = bicycle_step(state.pose[:, None, :].expand(n, k, 3),
+                                 v[:, None].expand(n, k), spread.expand(n, k),
+                                 cfg.vehicle)  # (N, K, 3)
+            clear = ~touches_obstacle(vehicle_frame(tries, cfg.vehicle), world,
+                                      state.present[:, None, :])
+            gap = (spread - delta[:, None]).abs() + torch.where(clear, 0.0, 1e3)
+            steered = collision & clear.any(-1)
+            chosen = tries[torch.arange(n, device=v.device), gap.argmin(-1)]
+            pose = torch.where(steered[:, None], chosen, pose)
+            collision = collision & ~steered
+        # Keep the old pose where the new one would still collide. The old pose is
+        # collision-free (a start is, and so is every pose a braked step keeps), so nothing
+        # collides.
         braked, collision = collision, braked
         pose = torch.where(braked[:, None], state.pose, pose)
         v = torch.where(braked, 0.0, v)
     state = state._replace(pose=pose, speed=v, steps=state.steps + 1, braked=braked,
-                           brakes=state.brakes + braked.long(), docking=docking,
+                           brakes=state.brakes + intervened.long(), docking=docking,
                            reversing=reversing)
     observation, cost = observe(state, world, cfg)
     success = is_success(cost, world.success_threshold)

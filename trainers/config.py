@@ -42,6 +42,12 @@ class EnvConfig:
     action_repeat: int = 1
     # ParkingConfig.emergency_brake: a step that would collide is not taken (speed 0).
     emergency_brake: bool = False
+    # ParkingConfig.steer_clear: with the brake, the steering angles it tries (the clear one
+    # nearest the commanded) before stopping a step; 0: it stops.
+    steer_clear: int = 0
+    # Append the env's braked flag (the brake stopped the last step) to the policy's input:
+    # a deterministic policy that pushes into a parked car sees that it was stopped.
+    observe_brake: bool = False
     # RewardConfig.brake_penalty: added to the reward of a step the brake stops (training).
     brake_penalty: float = 0.0
     # ParkingConfig.docking: a fixed feedback law (torchpark.docking) drives once the car is
@@ -126,15 +132,16 @@ def _paper() -> TrainConfig:
 def _fast() -> TrainConfig:
     """What a batched env allows: many compiled envs, short rollouts, a few epochs, and the
     agent-side aids that made the task learnable here (all documented in the README): each
-    action held for 0.5 s (5 steps of dt), a cubic speed map, the goal seen from the car,
-    half the training starts near the goal, an emergency brake and a docking layer under
-    the policy, a state-dependent std, gamma 0.995, rewards x0.1 for the critic. Same
+    action held for 0.5 s (5 steps of dt), actions in [-1, 1], the goal seen from the car,
+    half the training starts near the goal, an emergency brake that steers clear (its flag
+    in the policy's input) and a docking layer under the policy, a state-dependent std,
+    gamma 0.995, rewards x0.1 for the critic. Same
     reward, success test (4e-4) and 6-phase curriculum (2M frames = steps of dt per level)
     as the paper."""
     return TrainConfig(
         env=EnvConfig(num_envs=1024, compile_step=True, goal_features=True, action_repeat=5,
-                      action_exponents=[3.0, 1.0], near_goal_starts=0.5,
-                      emergency_brake=True, docking=True),
+                      action_exponents=[1.0, 1.0], near_goal_starts=0.5,
+                      emergency_brake=True, steer_clear=5, observe_brake=True, docking=True),
         collector=CollectorConfig(frames_per_batch=1024 * 32 * 5),
         loss=LossConfig(gamma=0.995, mini_batch_size=1024, ppo_epochs=8, reward_scale=0.1),
         model=ModelConfig(hidden=[256, 256], init_log_std=-1.0, state_dependent_std=True),

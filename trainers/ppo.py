@@ -18,7 +18,9 @@ import torch
 from tensordict import TensorDict
 from torchrl.collectors import Collector
 from torchrl.envs import (
+    CatTensors,
     Compose,
+    DTypeCastTransform,
     InitTracker,
     RewardScaling,
     RewardSum,
@@ -58,6 +60,7 @@ def parking_config(cfg: TrainConfig, training: bool) -> ParkingConfig:
     paper's."""
     config = ParkingConfig(max_steps=cfg.env.max_steps, action_repeat=cfg.env.action_repeat,
                            emergency_brake=cfg.env.emergency_brake,
+                           steer_clear=cfg.env.steer_clear,
                            docking=DockingConfig(reach=cfg.env.docking_reach,
                                                  lateral=cfg.env.docking_lateral,
                                                  heading=cfg.env.docking_heading)
@@ -100,7 +103,8 @@ def success_curriculum(cfg: TrainConfig) -> list[Transform]:
 
 def policy_input(cfg: TrainConfig) -> list[Transform]:
     """The transforms between the env and the networks: the optional action map, then from
-    the raw observation to the networks' input ``NORMALISED`` (last).
+    the raw observation (with the optional goal features and brake flag) to the networks'
+    input ``NORMALISED`` (last).
 
     Normalised into its own key: the networks read it, while the raw observation stays in the
     data for evaluation and analysis (final position and heading errors). reduce_batch_dims:
@@ -114,6 +118,12 @@ def policy_input(cfg: TrainConfig) -> list[Transform]:
                                          cfg.env.action_exponents))
     if cfg.env.goal_features:
         transforms.append(GoalFrameFeatures("observation", "observation_policy"))
+        source = ["observation_policy"]
+    if cfg.env.observe_brake:
+        transforms += [DTypeCastTransform(torch.bool, torch.float32, in_keys=["braked"],
+                                          out_keys=["braked_input"]),
+                       CatTensors([*source, "braked_input"], "observation_policy",
+                                  del_keys=False, sort=False)]
         source = ["observation_policy"]
     return [*transforms, VecNormV2(in_keys=source, out_keys=[NORMALISED],
                                    reduce_batch_dims=True)]
