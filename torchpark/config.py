@@ -165,8 +165,8 @@ class DockingConfig:
     lateral: float = 4.0  # m
     heading: float = math.pi  # rad: any heading
     gain: float = 16.0  # 1/m^2
-    forward_gain: float = 0.5  # 1/m^2
-    reverse_gain: float = 0.25  # 1/m^2
+    forward_gain: float = 0.25  # 1/m^2
+    reverse_gain: float = 0.125  # 1/m^2
     settled_lateral: float = 0.1  # m
     settled_heading: float = 0.1  # rad
     speed_gain: float = 0.8  # 1/s
