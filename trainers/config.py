@@ -135,9 +135,8 @@ def _fast() -> TrainConfig:
     action held for 0.5 s (5 steps of dt), actions in [-1, 1], the goal seen from the car,
     half the training starts near the goal, an emergency brake that steers clear (its flag
     in the policy's input) and a docking layer under the policy, a state-dependent std,
-    gamma 0.995, rewards x0.1 for the critic. Same
-    reward, success test (4e-4) and 6-phase curriculum (2M frames = steps of dt per level)
-    as the paper."""
+    gamma 0.995, rewards x0.1 for the critic. Same reward, success test (4e-4) and 6-phase
+    curriculum (2M frames = steps of dt per level) as the paper."""
     return TrainConfig(
         env=EnvConfig(num_envs=1024, compile_step=True, goal_features=True, action_repeat=5,
                       action_exponents=[1.0, 1.0], near_goal_starts=0.5,

@@ -80,10 +80,10 @@ class Episodes:
     their last pose after their end); final: (N, 7) the last observation's [dx, dy, cos psi,
     sin psi, v, cos alpha, sin alpha]; length: env steps taken (an index into ``poses``);
     steps: steps of dt taken (``repeat`` per env step when the env holds its actions);
-    braked: the emergency brake stopped at least one of the episode's steps of dt (each one
-    a collision in the paper's env, which has no brake; with the docking layer, the law's
-    stops count too); docked: the docking layer (when on)
-    had taken over by the episode's end.
+    braked: the emergency brake stopped or steered (``steer_clear``) at least one of the
+    episode's steps of dt (each one a collision in the paper's env, which has no brake; with
+    the docking layer, the law's count too); docked: the docking layer (when on) had taken
+    over by the episode's end.
     """
 
     success: torch.Tensor
