@@ -7,19 +7,18 @@ The success test ``C < 4e-4`` asks for about 1 mm, 0.1 deg and 4 mm/s at once. T
 starts every episode in a box behind its goal (``LotConfig``'s near-goal poses: up to
 ``back`` m back along the slot axis, ``side`` m to either side, ``heading`` rad off) and lets
 the docking layer (``torchpark.docking``, a fixed feedback law driving multi-point turns,
-its funnel 6 m deep and as wide as the box) drive, in the paper's env otherwise (no held
-actions; the policy's action is ignored), with the emergency brake under it unless
-``--no-brake``, steering clear over ``--steer-clear`` angles (``ParkingConfig.steer_clear``;
-0: the brake only stops). It prints per box and occupancy the success (``C < 4e-4``), collision and
-braked rates of each env's first episode (1,000 steps), as a Markdown table. The law knows
-nothing of parked cars but what the brake does (it turns back when stopped); without the
-brake its collisions are those of its own path.
+its funnel as deep as ``DockingConfig``'s default and as wide as the box) drive, in the
+paper's env otherwise (no held actions; the policy's action is ignored), with the emergency
+brake under it unless ``--no-brake``, steering clear over ``--steer-clear`` angles
+(``ParkingConfig.steer_clear``; 0: the brake only stops). It prints per box and occupancy
+the success (``C < 4e-4``), collision and braked rates of each env's first episode (1,000
+steps), as a Markdown table. The law knows nothing of parked cars but what the brake does
+(it turns back when stopped); without the brake its collisions are those of its own path.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 
 import torch
 from torchrl.envs import TransformedEnv
@@ -27,8 +26,9 @@ from torchrl.envs import TransformedEnv
 from torchpark import DockingConfig, LotConfig, ParkingConfig, ParkingEnv
 from trainers.evaluate import run_episodes
 
+_FUNNEL = DockingConfig()
 BOXES = [(1.5, 0.05, 0.05), (6.0, 0.1, 0.1), (6.0, 0.5, 0.35), (6.0, 1.0, 0.6), (6.0, 2.5, 1.6),
-         (6.0, 4.0, math.pi)]  # the last: DockingConfig's default funnel
+         (_FUNNEL.reach, _FUNNEL.lateral, _FUNNEL.heading)]  # the last: the default funnel
 
 
 def main() -> None:

@@ -161,7 +161,7 @@ class DockingConfig:
     and drives forwards again when braked or ``run_in`` m back.
     """
 
-    reach: float = 6.0  # m
+    reach: float = 8.0  # m
     lateral: float = 4.0  # m
     heading: float = math.pi  # rad: any heading
     gain: float = 16.0  # 1/m^2
