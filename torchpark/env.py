@@ -22,7 +22,14 @@ from torchpark.geometry import BoxFrame, box_frame
 from torchpark.lidar import line_rotation
 from torchpark.lot import build_layout, draw_goals_and_cars, draw_starts
 from torchpark.rendering import LotRenderer, frame_grid
-from torchpark.simulation import ParkingState, World, merge_steps, parking_step, reset_rows
+from torchpark.simulation import (
+    ParkingState,
+    World,
+    merge_steps,
+    parking_step,
+    reset_rows,
+    steer_angles,
+)
 
 
 class ParkingEnv(EnvBase):
@@ -86,6 +93,7 @@ class ParkingEnv(EnvBase):
             slots_and_walls=self.layout.slots_and_walls,
             extent=torch.tensor([self.layout.width, self.layout.height], device=self.device),
             success_threshold=self._success_threshold,
+            steer_angles=steer_angles(cfg, self.device),
         )
         step_fn = partial(parking_step, world=self._world, cfg=cfg)
         reset_fn = partial(reset_rows, world=self._world, cfg=cfg)

@@ -28,7 +28,9 @@ class World(NamedTuple):
     then 4 walls; rotation: LIDAR line rotation (2, 2 * lines); goal_poses: (S, 3) rear-axle
     goal pose of each slot; slots_and_walls: frame (S + 4,) that a start pose must not touch;
     extent: (2,) the lot's width and height, m; success_threshold: () the success test's
-    threshold on C, a tensor so that changing it in place needs no recompilation."""
+    threshold on C, a tensor so that changing it in place needs no recompilation;
+    steer_angles: (K,) rad, the steering angles the brake tries (``ParkingConfig.steer_clear``
+    = K, evenly spread over the vehicle's range; empty when 0)."""
 
     obstacles: BoxFrame
     rotation: Tensor
@@ -36,6 +38,14 @@ class World(NamedTuple):
     slots_and_walls: BoxFrame
     extent: Tensor
     success_threshold: Tensor
+    steer_angles: Tensor
+
+
+def steer_angles(cfg: ParkingConfig, device: torch.device | str | None = None) -> Tensor:
+    """The brake's (K,) steering angles, rad: ``cfg.steer_clear`` evenly spread over
+    [-max_steer, max_steer]."""
+    return torch.linspace(-cfg.vehicle.max_steer, cfg.vehicle.max_steer, cfg.steer_clear,
+                          device=device)
 
 
 class ParkingState(NamedTuple):
@@ -140,8 +150,7 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
         if cfg.steer_clear:
             # The same speed at other steering angles: the clear one nearest the commanded.
             n, k = v.shape[0], cfg.steer_clear
-            spread = torch.linspace(-cfg.vehicle.max_steer, cfg.vehicle.max_steer, k,
-                                    device=v.device)
+            spread = world.steer_angles
             tries = bicycle_step(state.pose[:, None, :].expand(n, k, 3),
                                  v[:, None].expand(n, k), spread.expand(n, k),
                                  cfg.vehicle)  # (N, K, 3)
@@ -149,7 +158,7 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
                                       state.present[:, None, :])
             gap = (spread - delta[:, None]).abs() + torch.where(clear, 0.0, 1e3)
             steered = collision & clear.any(-1)
-            chosen = tries[torch.arange(n, device=v.device), gap.argmin(-1)]
+            chosen = torch.take_along_dim(tries, gap.argmin(-1)[:, None, None], dim=1)[:, 0]
             pose = torch.where(steered[:, None], chosen, pose)
             collision = collision & ~steered
         # Keep the old pose where the new one would still collide. The old pose is
