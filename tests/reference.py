@@ -147,6 +147,42 @@ class ReferenceParkingEnv:
         ego = self._ego()
         return any(_polygons_touch(ego, poly) for poly in self.obstacles)
 
+    # Where a float32 result may differ from this float64 one by more than rounding: the
+    # decision flips on a sliver of the input. Each margin is 0 at the flip and grows with the
+    # distance from it, in metres.
+    def ray_margins(self) -> np.ndarray:
+        """(n_rays,) per ray, the distance from the ray (origin to max_range) to the nearest
+        obstacle corner it passes: a ray that grazes a corner hits or misses by a hair, and its
+        reading jumps between the corner's distance and whatever lies behind."""
+        cfg = self.cfg
+        centre = self._ego().mean(axis=0)
+        corners = np.concatenate(self.obstacles) - centre if self.obstacles else np.zeros((0, 2))
+        margins = []
+        for k in range(cfg.n_rays):
+            angle = self.psi + 2.0 * math.pi * k / cfg.n_rays
+            c, s = math.cos(angle), math.sin(angle)
+            along = corners @ np.array([c, s])
+            across = np.abs(corners @ np.array([-s, c]))
+            passed = (along >= 0.0) & (along <= cfg.max_range)
+            margins.append(across[passed].min(initial=math.inf))
+        return np.array(margins)
+
+    def contact_margin(self) -> float:
+        """|SAT gap| to the nearest obstacle, metres: the largest separation (or the smallest
+        penetration) along the boxes' edge normals; touching flips at 0."""
+        ego = self._ego()
+        best = math.inf
+        for poly in self.obstacles:
+            gap = -math.inf
+            for box in (ego, poly):
+                for i in range(4):
+                    edge = box[(i + 1) % 4] - box[i]
+                    axis = np.array([-edge[1], edge[0]]) / np.hypot(*edge)
+                    pp, qq = ego @ axis, poly @ axis
+                    gap = max(gap, qq.min() - pp.max(), pp.min() - qq.max())
+            best = min(best, abs(gap))
+        return best
+
     def cost(self) -> float:
         wx, wy, wa, wv = self.cfg.weights
         gx, gy, alpha = self.goal

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import torch
 from omegaconf import OmegaConf
+from torch.utils._pytree import tree_map_only
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from torchrl.modules import ProbabilisticActor
@@ -44,7 +45,7 @@ COLUMNS = ("occupancy", "episodes", "success", "collision", "timeout", "grazing"
 
 
 def load(path: str) -> tuple[TrainConfig, dict]:
-    checkpoint = torch.load(path, weights_only=False)
+    checkpoint = torch.load(path, weights_only=False, map_location="cpu")
     merged = OmegaConf.merge(OmegaConf.structured(TrainConfig), checkpoint["config"])
     return OmegaConf.to_object(merged), checkpoint
 
@@ -185,18 +186,24 @@ def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
 
 def make_policy(cfg: TrainConfig, checkpoint: dict) -> ProbabilisticActor:
     """The checkpoint's actor (it reads ``NORMALISED``, see :func:`make_eval_env`)."""
-    probe = TransformedEnv(ParkingEnv(1), Compose(*policy_input(cfg)))
+    probe = TransformedEnv(ParkingEnv(1, device=cfg.env.device), Compose(*policy_input(cfg)))
     actor, _ = make_ppo_models(probe.observation_spec[NORMALISED].shape[-1], probe.action_spec,
                                cfg.model)
     actor.load_state_dict(checkpoint["actor"])
-    return actor
+    return actor.to(cfg.env.device)
 
 
 def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
-             videos: Path | None = None, video_format: str = "mp4") -> list[dict[str, float]]:
+             videos: Path | None = None, video_format: str = "mp4",
+             device: str | None = None) -> list[dict[str, float]]:
     """The table's rows, one per level; with ``videos``, also one rollout video per level
-    (``rollout_occ{percent}.{video_format}``) of the deterministic policy in that directory."""
+    (``rollout_occ{percent}.{video_format}``) of the deterministic policy in that directory.
+    ``device``: where the envs and the policy run (default: the checkpoint's training
+    device)."""
     cfg, checkpoint = load(path)
+    if device is not None:
+        cfg.env.device = device
+    checkpoint = tree_map_only(torch.Tensor, lambda t: t.to(cfg.env.device), checkpoint)
     actor = make_policy(cfg, checkpoint)
     rows = []
     for level in levels:
@@ -227,13 +234,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", default=None, help="directory (default: the checkpoint's)")
     parser.add_argument("--videos", choices=("mp4", "gif", "none"), default="mp4",
                         help="one rollout video per occupancy level, in --out")
+    parser.add_argument("--device", default=None,
+                        help="torch device of the envs and the policy (default: the training's)")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
     out = Path(args.out) if args.out else Path(args.checkpoint).parent
     out.mkdir(parents=True, exist_ok=True)
     rows = evaluate(args.checkpoint, args.episodes, seed=args.seed,
-                    videos=None if args.videos == "none" else out, video_format=args.videos)
+                    videos=None if args.videos == "none" else out, video_format=args.videos,
+                    device=args.device)
     table = to_markdown(rows)
     (out / "evaluation.md").write_text(table + "\n")
     with open(out / "evaluation.csv", "w", newline="") as f:

@@ -160,7 +160,8 @@ def train(cfg: TrainConfig, resume: str | None = None) -> Path:
     """Run PPO; returns the path of the final checkpoint."""
     run_dir = Path(cfg.logger.log_dir) / cfg.logger.exp_name
     check_log_dir(run_dir)
-    checkpoint = torch.load(resume, weights_only=False) if resume else None
+    checkpoint = torch.load(resume, weights_only=False, map_location=cfg.env.device) \
+        if resume else None
     if checkpoint is not None:
         saved = checkpoint["config"]
         for section in _MODEL_SECTIONS:
@@ -170,8 +171,10 @@ def train(cfg: TrainConfig, resume: str | None = None) -> Path:
     torch.manual_seed(cfg.seed)
 
     env = make_env(cfg)
+    device = torch.device(cfg.env.device)
     actor, critic = make_ppo_models(env.observation_spec[NORMALISED].shape[-1], env.action_spec,
                                     cfg.model)
+    actor, critic = actor.to(device), critic.to(device)
     loss_module = ClipPPOLoss(
         actor, critic, clip_epsilon=cfg.loss.clip_epsilon,
         entropy_bonus=cfg.loss.entropy_coeff > 0, entropy_coeff=cfg.loss.entropy_coeff,
@@ -221,7 +224,8 @@ def train(cfg: TrainConfig, resume: str | None = None) -> Path:
             advantage(batch)
         flat = batch.reshape(-1)
         for _ in range(cfg.loss.ppo_epochs):
-            for index in torch.randperm(flat.shape[0]).split(cfg.loss.mini_batch_size):
+            for index in torch.randperm(flat.shape[0], device=device).split(
+                    cfg.loss.mini_batch_size):
                 losses = loss_module(flat[index])
                 total = losses["loss_objective"] + losses["loss_critic"]
                 if "loss_entropy" in losses.keys():
