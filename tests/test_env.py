@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
+import numpy as np
 import pytest
 import torch
 from tensordict import TensorDict
@@ -443,3 +446,89 @@ def test_randomize_step_counts_spreads_the_first_timeouts():
         td = env.step(td.set("action", torch.zeros(512, 2)))["next"]
         first_end = torch.where((first_end < 0) & td["truncated"][:, 0], step, first_end)
     assert torch.equal(first_end, 100 - steps)
+
+
+# ---------------------------------------------------------------- hostile input
+
+
+def test_step_and_render_before_reset_raise():
+    env = ParkingEnv(4, seed=0)
+    with pytest.raises(RuntimeError, match="before reset"):
+        act(env, [1.0, 0.0])
+    with pytest.raises(RuntimeError, match="before reset"):
+        env.render()
+    env.reset()
+    assert not act(env, [0.0, 0.0])["success"].any()  # a real lot: nobody starts on the goal
+
+
+def test_no_autograd_graph_enters_the_state(device):
+    env = ParkingEnv(8, seed=0, device=device)
+    td = env.reset()
+    action = torch.ones(8, 2, device=device, requires_grad=True)
+    out = env.step(td.set("action", action * 2.0))["next"]
+    assert not any(t.requires_grad for t in env.state)
+    assert not any(v.requires_grad for v in out.values(include_nested=True, leaves_only=True))
+    rollout = env.rollout(5, lambda td: td.set("action", action * 1.0))  # outside no_grad
+    assert not rollout["next", "observation"].requires_grad
+
+
+def test_action_dtypes_float64_is_rounded_the_others_refused():
+    a = (torch.rand(6, 2, dtype=torch.float64) * 2 - 1) * torch.tensor([5.0, 0.785],
+                                                                      dtype=torch.float64)
+    first, second = ParkingEnv(6, seed=3), ParkingEnv(6, seed=3)
+    first.reset(), second.reset()
+    assert torch.equal(act(first, a.float())["observation"], act(second, a)["observation"])
+    for dtype in (torch.float16, torch.bfloat16, torch.int64, torch.bool):
+        with pytest.raises(ValueError, match=f"action must be float32 .* got {dtype}"):
+            first.step(TensorDict({"action": a.to(dtype)}, batch_size=[6]))
+
+
+@pytest.mark.parametrize("seed", [1.5, True, "1", np.bool_(True)])
+def test_a_seed_that_is_not_an_int_raises(seed):
+    with pytest.raises(ValueError, match="seed must be an int or None"):
+        ParkingEnv(2, seed=seed)
+
+
+def test_numpy_numbers_are_taken_where_python_numbers_are():
+    env = ParkingEnv(2, seed=np.int64(4))
+    env.occupancy = np.float32(0.5)
+    assert env.occupancy == 0.5
+
+
+def test_the_returned_observation_is_the_callers_own():
+    env = ParkingEnv(4, seed=5)
+    td = env.reset()
+    kept = td["observation"].clone()
+    td["observation"].fill_(123.0)  # the caller edits what it got
+    none = TensorDict({"_reset": torch.zeros(4, 1, dtype=torch.bool)}, batch_size=[4])
+    assert torch.equal(env._reset(none)["observation"], kept)  # the env's own output
+    step = act(env, [1.0, 0.2])
+    seen = step["observation"].clone()
+    step["observation"].fill_(-1.0)
+    assert torch.equal(env._reset(none)["observation"], seen)
+
+
+IMPOSSIBLE = [
+    ("vehicle=VehicleConfig(length=60.0, wheelbase=50.0)", "VehicleConfig"),
+    ("lot=LotConfig(margin=float('inf'))", "LotConfig.margin"),
+]
+
+
+@pytest.mark.parametrize("config, name", IMPOSSIBLE, ids=["huge-car", "infinite-margin"])
+def test_an_impossible_lot_fails_fast_naming_the_config(config, name):
+    """In a subprocess with a timeout: a sampling loop without a bound would hang."""
+    code = f"from torchpark import *\nParkingEnv(1, config=ParkingConfig({config}))"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode != 0
+    assert "ValueError" in done.stderr and name in done.stderr, done.stderr[-500:]
+
+
+def test_the_demo_follows_its_seed(capsys):
+    from torchpark.__main__ import main as demo
+
+    def report(seed: int) -> str:
+        demo(["--eager", "--num-envs", "32", "--steps", "40", "--seed", str(seed)])
+        return capsys.readouterr().out.splitlines()[-1]  # episodes and mean reward
+
+    assert report(0) == report(0) != report(1)

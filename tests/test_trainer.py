@@ -42,7 +42,7 @@ def test_smoke_preset_trains_and_logs(smoke_run):
     assert TAGS <= set(events.Tags()["scalars"])
     phases = [e.value for e in events.Scalars("curriculum/phase")]
     assert phases == sorted(phases) and phases[-1] > 1  # 4 x 1024 frames, 1024 per level
-    ckpt = torch.load(final, weights_only=False)
+    ckpt = torch.load(final, weights_only=True)
     assert ckpt["frames"] == cfg.collector.total_frames
     assert ckpt["config"] == dataclasses.asdict(cfg)
     assert {"actor", "critic", "optim", "env"} <= set(ckpt)
@@ -51,12 +51,12 @@ def test_smoke_preset_trains_and_logs(smoke_run):
 
 def test_resume_keeps_frames_and_curriculum(smoke_run, tmp_path):
     _, final = smoke_run
-    frames = [int(v) for k, v in torch.load(final, weights_only=False)["env"].items()
+    frames = [int(v) for k, v in torch.load(final, weights_only=True)["env"].items()
               if k.endswith("frames")]
     assert frames == [4096]
     main(["--preset", "smoke", "--resume", str(final), f"logger.log_dir={tmp_path}",
           "collector.total_frames=6144"])
-    resumed = torch.load(tmp_path / "smoke" / "checkpoint_final.pt", weights_only=False)
+    resumed = torch.load(tmp_path / "smoke" / "checkpoint_final.pt", weights_only=True)
     assert resumed["frames"] == 6144
     assert [int(v) for k, v in resumed["env"].items() if k.endswith("frames")] == [6144]
 
@@ -83,6 +83,33 @@ def test_unwritable_log_dir_is_an_error_before_training(tmp_path):
     cfg = load_config("smoke", [f"logger.log_dir={blocker / 'runs'}"])
     with pytest.raises(ValueError, match=r"logger\.log_dir .* cannot be created"):
         train(cfg)
+
+
+def test_a_run_directory_in_use_is_refused_unless_overwrite(smoke_run, capsys):
+    cfg, final = smoke_run
+    before = final.read_bytes()
+    argv = ["--preset", "smoke", f"logger.log_dir={cfg.logger.log_dir}"]
+    with pytest.raises(SystemExit) as refused:
+        main(argv)
+    assert refused.value.code == 2
+    assert "already holds a run" in capsys.readouterr().err
+    assert final.read_bytes() == before
+    main([*argv, "--overwrite", "collector.total_frames=2048"])
+    assert torch.load(final, weights_only=True)["frames"] == 2048
+    assert not (final.parent / "checkpoint_4096.pt").exists()  # the old run's are gone
+    main([*argv, "--overwrite"])  # the fixture's run, as it was, for the tests after this
+
+
+def test_evaluation_never_replaces_files_without_overwrite(smoke_run, tmp_path, capsys):
+    _, final = smoke_run
+    (tmp_path / "evaluation.md").write_text("mine")
+    argv = [str(final), "--episodes", "2", "--out", str(tmp_path), "--videos", "none"]
+    with pytest.raises(SystemExit) as refused:
+        evaluate_main(argv)
+    assert refused.value.code == 2 and "evaluation.md exists" in capsys.readouterr().err
+    assert (tmp_path / "evaluation.md").read_text() == "mine"
+    evaluate_main([*argv, "--overwrite"])
+    assert (tmp_path / "evaluation.md").read_text().startswith("| occupancy")
 
 
 def test_evaluation_table_has_the_stated_columns(smoke_run, tmp_path):
@@ -181,7 +208,7 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
         "env.steer_clear=5", "env.observe_brake=true",
     ])
     final = train(cfg)
-    ckpt = torch.load(final, weights_only=False)
+    ckpt = torch.load(final, weights_only=True)
     assert ckpt["frames"] == 4096
     # Frames are steps of dt: 2 batches of 16 envs x 64 actions held 2 steps each.
     assert [int(v) for k, v in ckpt["env"].items() if k.endswith("frames")] == [4096] * 2
@@ -231,3 +258,21 @@ def test_observe_brake_appends_the_brake_flag_to_the_policy_input():
 def test_action_repeat_must_divide_the_batch():
     with pytest.raises(ValueError, match=r"multiple of env.num_envs x env.action_repeat = 48"):
         load_config("smoke", ["env.action_repeat=3"])
+
+
+@pytest.mark.parametrize("override, name", [
+    ("loss.max_grad_norm=-1", "loss.max_grad_norm"), ("loss.ppo_epochs=0", "loss.ppo_epochs"),
+    ("logger.checkpoint_every=0", "logger.checkpoint_every"), ("loss.gamma=1.5", "loss.gamma"),
+    ("loss.gamma=0", "loss.gamma"), ("optim.lr=nan", "optim.lr"),
+    ("model.hidden=[]", "model.hidden"), ("curriculum.levels=[0.5,2.0]", "curriculum.levels"),
+    ("collector.total_frames=512", "collector.total_frames"),
+    ("env.max_steps=0", "ParkingConfig.max_steps"), ("logger.exp_name=a/b", "logger.exp_name"),
+    ("env.num_envs=true", "num_envs"), ("env.max_steps=1.5", "max_steps"),
+    ("env.emergency_brake=maybe", "emergency_brake"),
+])
+def test_a_bad_training_field_is_one_line_naming_it(override, name, capsys):
+    with pytest.raises(SystemExit) as refused:
+        main(["--preset", "smoke", override])
+    err = capsys.readouterr().err
+    assert refused.value.code == 2 and name in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err

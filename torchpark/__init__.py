@@ -1,5 +1,6 @@
 """torchpark: batched autonomous-parking simulation for reinforcement learning in TorchRL."""
 
+from torchpark.actions import PowerActionMap
 from torchpark.config import (
     DockingConfig,
     LidarConfig,
@@ -26,6 +27,7 @@ __all__ = [
     "ParkingEnv",
     "ParkingGymEnv",
     "ParkingVectorEnv",
+    "PowerActionMap",
     "RewardConfig",
     "SuccessCurriculum",
     "VehicleConfig",

@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 import time
 
+import torch
+
 from torchpark import ParkingEnv
 
 
@@ -23,9 +25,16 @@ def main(argv: list[str] | None = None) -> None:
                         help="compile_step=False (by default the step is compiled)")
     args = parser.parse_args(argv)
 
-    env = ParkingEnv(args.num_envs, device=args.device, seed=args.seed,
-                     compile_step=not args.eager)
-    env.occupancy = args.occupancy
+    torch.manual_seed(args.seed)  # the random actions (the action spec's rand) follow the seed
+    try:
+        env = ParkingEnv(args.num_envs, device=args.device, seed=args.seed,
+                         compile_step=not args.eager)
+        env.occupancy = args.occupancy
+    except (ValueError, TypeError, RuntimeError) as err:
+        parser.exit(2, f"{parser.prog}: error: {err}\n")
+    if not args.eager:
+        print("compiling the step and the reset (tens of seconds; --eager skips it) ...",
+              flush=True)
     start = time.perf_counter()
     env.rollout(3, break_when_any_done=False)  # warm-up: compiles step and reset when asked
     if not args.eager:

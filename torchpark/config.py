@@ -6,8 +6,43 @@ impossible configuration fails at construction with the field's name and its all
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import numbers
+import typing
 from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def _check_types(config: object) -> None:
+    """Every field of a config dataclass against its annotation, by name: bool fields take
+    bools, int fields ints (not bools), float fields real numbers (not bools; ints and numpy
+    numbers are stored as float), nested configs their class, ``X | None`` also None. Raises
+    TypeError naming ``Class.field``; otherwise stores the normalised values."""
+    owner = type(config).__name__
+    hints = typing.get_type_hints(type(config))
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        kinds = typing.get_args(hints[f.name]) or (hints[f.name],)
+        if value is None and type(None) in kinds:
+            continue
+        kind = next(k for k in kinds if k is not type(None))
+        is_bool = isinstance(value, (bool, np.bool_))
+        if kind is bool and is_bool:
+            value = bool(value)
+        elif kind is int and isinstance(value, numbers.Integral) and not is_bool:
+            value = int(value)
+        elif kind is float and isinstance(value, numbers.Real) and not is_bool:
+            value = float(value)
+        elif kind not in (bool, int, float) and isinstance(value, kind):
+            pass
+        else:
+            expected = {bool: "a bool", int: "an int", float: "a number"}.get(
+                kind, f"a {kind.__name__}") + (" or None" if type(None) in kinds else "")
+            raise TypeError(f"{owner}.{f.name} must be {expected}, got {value!r} "
+                            f"({type(value).__name__})")
+        object.__setattr__(config, f.name, value)
 
 
 def _require(ok: bool, name: str, allowed: str, value: object) -> None:
@@ -32,6 +67,7 @@ class VehicleConfig:
     max_steer: float = 0.785  # |delta| limit, rad
 
     def __post_init__(self) -> None:
+        _check_types(self)
         for name in ("wheelbase", "width", "length", "dt", "max_speed", "max_steer"):
             _positive(f"VehicleConfig.{name}", getattr(self, name))
         _require(
@@ -77,10 +113,12 @@ class LotConfig:
     near_goal_candidates: int = 8
 
     def __post_init__(self) -> None:
+        _check_types(self)
         for name in ("slot_width", "slot_length", "lane_width", "car_width", "car_length",
                      "wall_thickness"):
             _positive(f"LotConfig.{name}", getattr(self, name))
-        _require(self.margin >= 0, "LotConfig.margin", ">= 0", self.margin)
+        _require(math.isfinite(self.margin) and self.margin >= 0, "LotConfig.margin",
+                 "a finite number >= 0", self.margin)
         for name in ("upper_slots", "left_slots", "middle_slots", "right_slots"):
             n = getattr(self, name)
             _require(isinstance(n, int) and 1 <= n, f"LotConfig.{name}", "an int >= 1", n)
@@ -94,6 +132,8 @@ class LotConfig:
                  self.start_candidates)
         _require(self.start_pool_size >= 1, "LotConfig.start_pool_size", ">= 1",
                  self.start_pool_size)
+        _require(0 <= self.pool_seed < 2**63, "LotConfig.pool_seed", "an int in [0, 2**63)",
+                 self.pool_seed)
         _require(0.0 <= self.near_goal_starts <= 1.0, "LotConfig.near_goal_starts", "in [0, 1]",
                  self.near_goal_starts)
         for name in ("near_goal_reach", "near_goal_lateral", "near_goal_heading"):
@@ -116,6 +156,7 @@ class LidarConfig:
     max_range: float = 20.0  # the paper gives none
 
     def __post_init__(self) -> None:
+        _check_types(self)
         _require(isinstance(self.n_rays, int) and self.n_rays >= 1, "LidarConfig.n_rays",
                  "an int >= 1", self.n_rays)
         _positive("LidarConfig.max_range", self.max_range)
@@ -137,9 +178,13 @@ class RewardConfig:
     brake_penalty: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("w_x", "w_y", "w_alpha", "w_v"):
-            value = getattr(self, name)
-            _require(math.isfinite(value) and value >= 0, f"RewardConfig.{name}", ">= 0", value)
+        _check_types(self)
+        # Position and heading weights > 0: with any of them 0, C < threshold holds away from
+        # the goal (all 0: every start is a success).
+        for name in ("w_x", "w_y", "w_alpha"):
+            _positive(f"RewardConfig.{name}", getattr(self, name))
+        _require(math.isfinite(self.w_v) and self.w_v >= 0, "RewardConfig.w_v",
+                 "a finite number >= 0", self.w_v)
         for name in ("collision_penalty", "success_bonus", "brake_penalty"):
             value = getattr(self, name)
             _require(math.isfinite(value), f"RewardConfig.{name}", "finite", value)
@@ -178,6 +223,7 @@ class DockingConfig:
     run_in: float = 10.0
 
     def __post_init__(self) -> None:
+        _check_types(self)
         for name in ("reach", "lateral", "heading", "gain", "forward_gain", "reverse_gain",
                      "settled_lateral", "settled_heading", "speed_gain", "min_speed",
                      "max_speed", "run_in"):
@@ -186,6 +232,9 @@ class DockingConfig:
                  "DockingConfig.abort", f"in [0, run_in = {self.run_in}]", self.abort)
         _require(self.min_speed <= self.max_speed, "DockingConfig.min_speed",
                  f"<= max_speed = {self.max_speed}", self.min_speed)
+
+
+_MAX_STEPS_LIMIT = 10**9  # far beyond any episode; the step counter is int64
 
 
 @dataclass(frozen=True)
@@ -215,10 +264,18 @@ class ParkingConfig:
     docking: DockingConfig | None = None
 
     def __post_init__(self) -> None:
+        _check_types(self)
         _require(self.docking is None or isinstance(self.docking, DockingConfig),
                  "ParkingConfig.docking", "None or a DockingConfig", self.docking)
-        _require(isinstance(self.max_steps, int) and self.max_steps >= 1,
-                 "ParkingConfig.max_steps", "an int >= 1", self.max_steps)
+        _require(1 <= self.max_steps <= _MAX_STEPS_LIMIT, "ParkingConfig.max_steps",
+                 f"an int in [1, {_MAX_STEPS_LIMIT}]", self.max_steps)
+        # A car that moves further in one step than the thinnest obstacle is thick could
+        # pass through it between two collision tests.
+        stride, thinnest = self.vehicle.max_speed * self.vehicle.dt, min(
+            self.lot.wall_thickness, self.lot.car_width)
+        _require(stride < thinnest, "VehicleConfig.max_speed * dt",
+                 f"< the thinnest obstacle, min(LotConfig.wall_thickness, car_width) = "
+                 f"{thinnest} m (else the car can pass through it in one step)", stride)
         _require(isinstance(self.action_repeat, int) and self.action_repeat >= 1,
                  "ParkingConfig.action_repeat", "an int >= 1", self.action_repeat)
         check_occupancy(self.occupancy, "ParkingConfig.occupancy")
@@ -231,6 +288,7 @@ class ParkingConfig:
 
 def check_occupancy(value: float, name: str = "occupancy") -> float:
     """Return ``value`` as a float, or raise naming ``name`` when it is not in [0, 1]."""
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 <= value <= 1.0
+    ok = isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) \
+        and 0.0 <= value <= 1.0
     _require(ok, name, "a number in [0, 1]", value)
     return float(value)

@@ -50,6 +50,11 @@ class ParkingEnv(EnvBase):
 
     Actions (N, 2) = (v m/s, delta rad) are clamped to [-max_speed, max_speed] and
     [-max_steer, max_steer] (documented behaviour); a non-finite action raises ValueError.
+    float32 actions are taken as they are and float64 ones (what numpy gives) rounded to
+    float32, the env's precision; half precision (float16, bfloat16: millimetres off after
+    100 steps, where success needs ~1 mm), integer and bool actions raise ValueError. Actions
+    are detached: no autograd graph enters the state. ``step`` before the first ``reset``
+    raises RuntimeError (the state holds no lot yet).
     Outputs per step: observation (N, 7 + n_rays) float32; reward, done, terminated, truncated,
     success, collision (N, 1); braked (N, 1) bool, whether the emergency brake stopped the last
     step of dt; occupancy (N, 1) float32, the occupancy the current lot was drawn with.
@@ -165,6 +170,9 @@ class ParkingEnv(EnvBase):
 
     # ------------------------------------------------------------------ seeding and state
     def _set_seed(self, seed: int | None) -> None:
+        if seed is not None and (isinstance(seed, (bool, np.bool_))
+                                 or not isinstance(seed, (int, np.integer))):
+            raise ValueError(f"seed must be an int or None, got {seed!r}")
         if seed is None:
             seed = int(torch.randint(0, 2**62, (), dtype=torch.int64))
         self._generator.manual_seed(int(seed))
@@ -186,6 +194,7 @@ class ParkingEnv(EnvBase):
             reversing=torch.zeros(n, dtype=torch.bool, device=dev),
         )
         self._observation = torch.zeros(n, self.obs_dim, device=dev)
+        self._started = False  # no lot drawn yet: reset() first
 
     def randomize_step_counts(self) -> None:
         """Set every env's step count to a uniform draw in [0, max_steps), from the env's
@@ -215,6 +224,8 @@ class ParkingEnv(EnvBase):
     def render_grid(self, indices: Sequence[int] | None = None, columns: int | None = None
                     ) -> np.ndarray:
         """Pictures of several envs' lots (default: all) tiled row by row into one image."""
+        if not self._started:
+            raise RuntimeError("ParkingEnv.render before reset: call env.reset() first")
         indices = list(range(self.num_envs)) if indices is None else [int(i) for i in indices]
         bad = [i for i in indices if not 0 <= i < self.num_envs]
         if bad or not indices:
@@ -246,13 +257,16 @@ class ParkingEnv(EnvBase):
         start = draw_starts(self.layout.goal_poses[goal], self.layout, self.config.lot,
                             self._generator)
         occupancy = torch.full((n,), self._occupancy, device=dev)
+        if not self._started:  # the first reset draws every row, whatever the mask
+            mask = torch.ones_like(mask)
         self._state, self._observation = self._reset_fn(
             self._state, self._observation, mask, goal, occupied, occupancy, start
         )
+        self._started = True
         no = torch.zeros(n, 1, dtype=torch.bool, device=dev)
         return TensorDict(
             {
-                "observation": self._observation,
+                "observation": self._observation.clone(),  # the caller's, not our buffer
                 "success": no, "collision": no.clone(), "braked": no.clone(),
                 "occupancy": self._state.occupancy[:, None],
                 "done": no.clone(), "terminated": no.clone(), "truncated": no.clone(),
@@ -261,12 +275,18 @@ class ParkingEnv(EnvBase):
         )
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        if not self._started:
+            raise RuntimeError("ParkingEnv.step before reset: call env.reset() first")
         action = tensordict.get("action")
         if action.shape != (self.num_envs, 2):
             raise ValueError(
                 f"action must have shape ({self.num_envs}, 2) = (num_envs, [v, delta]), "
                 f"got {tuple(action.shape)}"
             )
+        if action.dtype not in (torch.float32, torch.float64):
+            raise ValueError(f"action must be float32 (or float64, rounded to float32), got "
+                             f"{action.dtype}")
+        action = action.detach().to(torch.float32)
         state, out, finite = self._step_fn(self._state, action)
         if self.validate_actions and not bool(finite):  # before the state is kept
             raise ValueError("action must be finite (no NaN or inf); got a non-finite value")
@@ -274,7 +294,8 @@ class ParkingEnv(EnvBase):
             state, out = self._merge_fn(state, out, *self._step_fn(state, action)[:2])
         self._state, self._observation = state, out.observation
         return TensorDict(
-            {**out._asdict(), "occupancy": self._state.occupancy[:, None],
+            {**out._asdict(), "observation": out.observation.clone(),
+             "occupancy": self._state.occupancy[:, None],
              "braked": self._state.braked[:, None]},
             batch_size=self.batch_size, device=self.device,
         )

@@ -177,16 +177,31 @@ def start_pose_valid(poses: Tensor, blocked: BoxFrame, vehicle: VehicleConfig) -
     return frames_separation(BoxFrame(*(t[..., None] for t in ego)), blocked).amin(-1) > 0.0
 
 
+_POOL_ROUNDS = 16  # a share of valid starts below 1 / 64 of the lot is refused
+
+
 def _rejection_sample_pool(layout: LotLayout, vehicle: VehicleConfig, size: int,
                            generator: torch.Generator) -> Tensor:
-    """``size`` valid start poses by rejection from :func:`uniform_poses` (construction only)."""
+    """``size`` valid start poses by rejection from :func:`uniform_poses` (construction only).
+
+    At most _POOL_ROUNDS rounds of 4 x size candidates: a vehicle that fits nowhere, or in
+    too small a share of the lot, is an error naming the configuration, not a hang."""
     found: list[Tensor] = []
     count = 0
-    while count < size:
+    for _ in range(_POOL_ROUNDS):
+        if count >= size:
+            break
         candidates = uniform_poses(layout, (4 * size,), generator)
         valid = candidates[start_pose_valid(candidates, layout.slots_and_walls, vehicle)]
         found.append(valid)
         count += valid.shape[0]
+    else:
+        if count < size:
+            raise ValueError(
+                f"VehicleConfig(length={vehicle.length}, width={vehicle.width}) has room for "
+                f"a start pose in {count} of {_POOL_ROUNDS * 4 * size} uniform draws over the "
+                f"lot: fewer than LotConfig.start_pool_size={size} valid starts; the car does "
+                f"not fit the lot's lanes (LotConfig.lane_width)")
     return torch.cat(found)[:size]
 
 

@@ -7,11 +7,14 @@ error before training starts.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass, field, replace
 
 from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
-from torchpark.config import DockingConfig, LotConfig
+from torchpark.config import DockingConfig, LotConfig, ParkingConfig, RewardConfig
 from torchpark.curriculum import PAPER_LEVELS
 
 
@@ -167,13 +170,85 @@ def load_config(preset: str, overrides: list[str] | None = None) -> TrainConfig:
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
     base = OmegaConf.structured(PRESETS[preset]())
-    merged = OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides or [])))
-    cfg: TrainConfig = OmegaConf.to_object(merged)
+    try:
+        merged = OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides or [])))
+        cfg: TrainConfig = OmegaConf.to_object(merged)
+    except OmegaConfBaseException as err:  # a type error or an unknown key, by dot name
+        key = getattr(err, "full_key", None)
+        message = getattr(err, "msg", None) or str(err).splitlines()[0]
+        raise ValueError(f"{key}: {message}" if key else message) from None
     _check(cfg)
     return cfg
 
 
+def parking_config(cfg: TrainConfig, training: bool) -> ParkingConfig:
+    """The env's config for this run. What the agent is (held actions, the brake, the docking
+    layer) is the same in training and evaluation; the training aids (success threshold,
+    brake penalty, near-goal starts) apply only with ``training``, evaluation keeps the
+    paper's."""
+    config = ParkingConfig(max_steps=cfg.env.max_steps, action_repeat=cfg.env.action_repeat,
+                           emergency_brake=cfg.env.emergency_brake,
+                           steer_clear=cfg.env.steer_clear,
+                           docking=DockingConfig(reach=cfg.env.docking_reach,
+                                                 lateral=cfg.env.docking_lateral,
+                                                 heading=cfg.env.docking_heading)
+                           if cfg.env.docking else None)
+    if not training:
+        return config
+    return dataclasses.replace(
+        config, reward=RewardConfig(success_threshold=cfg.env.success_threshold,
+                                    brake_penalty=cfg.env.brake_penalty),
+        lot=LotConfig(near_goal_starts=cfg.env.near_goal_starts,
+                      near_goal_reach=cfg.env.near_goal_reach,
+                      near_goal_lateral=cfg.env.near_goal_lateral,
+                      near_goal_heading=cfg.env.near_goal_heading))
+
+
+def _require(ok: bool, name: str, allowed: str, value: object) -> None:
+    if not ok:
+        raise ValueError(f"{name} must be {allowed}, got {value!r}")
+
+
 def _check(cfg: TrainConfig) -> None:
+    """Every range the types do not already fix (OmegaConf checks those), by dot name."""
+    finite = math.isfinite
+    loss, c = cfg.loss, cfg.curriculum
+    _require(finite(loss.gamma) and 0 < loss.gamma <= 1, "loss.gamma", "in (0, 1]", loss.gamma)
+    _require(0 <= loss.gae_lambda <= 1, "loss.gae_lambda", "in [0, 1]", loss.gae_lambda)
+    for name in ("clip_epsilon", "critic_coeff", "max_grad_norm", "reward_scale"):
+        value = getattr(loss, name)
+        _require(finite(value) and value > 0, f"loss.{name}", "a finite number > 0", value)
+    _require(finite(loss.entropy_coeff) and loss.entropy_coeff >= 0, "loss.entropy_coeff",
+             "a finite number >= 0", loss.entropy_coeff)
+    _require(loss.ppo_epochs >= 1, "loss.ppo_epochs", "an int >= 1", loss.ppo_epochs)
+    _require(finite(cfg.optim.lr) and cfg.optim.lr > 0, "optim.lr", "a finite number > 0",
+             cfg.optim.lr)
+    _require(len(cfg.model.hidden) >= 1 and min(cfg.model.hidden) >= 1, "model.hidden",
+             "a non-empty list of ints >= 1", cfg.model.hidden)
+    _require(finite(cfg.model.init_log_std), "model.init_log_std", "finite",
+             cfg.model.init_log_std)
+    _require(cfg.logger.checkpoint_every >= 1, "logger.checkpoint_every", "an int >= 1",
+             cfg.logger.checkpoint_every)
+    _require(cfg.logger.exp_name not in ("", ".", "..") and "/" not in cfg.logger.exp_name,
+             "logger.exp_name", "a folder name (no '/')", cfg.logger.exp_name)
+    _require(len(c.levels) >= 1 and all(0 <= v <= 1 for v in c.levels), "curriculum.levels",
+             "a non-empty list of numbers in [0, 1]", c.levels)
+    _require(c.frames_per_level >= 1, "curriculum.frames_per_level", "an int >= 1",
+             c.frames_per_level)
+    _require(c.success_start is None or (finite(c.success_start) and c.success_start > 0),
+             "curriculum.success_start", "None or a finite number > 0", c.success_start)
+    _require(0 < c.success_factor < 1, "curriculum.success_factor", "in (0, 1)",
+             c.success_factor)
+    _require(0 <= c.success_target <= 1, "curriculum.success_target", "in [0, 1]",
+             c.success_target)
+    _require(c.success_window >= 1, "curriculum.success_window", "an int >= 1",
+             c.success_window)
+    _require(cfg.seed >= 0, "seed", "an int >= 0", cfg.seed)
+    for training in (True, False):  # the env's fields, as torchpark checks them
+        try:
+            parking_config(cfg, training)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"env: {err}") from None
     n, batch, k = cfg.env.num_envs, cfg.collector.frames_per_batch, cfg.env.action_repeat
     if n < 1:
         raise ValueError(f"env.num_envs must be >= 1, got {n}")
@@ -182,6 +257,8 @@ def _check(cfg: TrainConfig) -> None:
     if batch < n * k or batch % (n * k):
         raise ValueError(f"collector.frames_per_batch must be a multiple of env.num_envs x "
                          f"env.action_repeat = {n * k}, got {batch}")
+    _require(cfg.collector.total_frames >= batch, "collector.total_frames",
+             f">= collector.frames_per_batch = {batch}", cfg.collector.total_frames)
     if not 1 <= cfg.loss.mini_batch_size <= batch // k:
         raise ValueError(f"loss.mini_batch_size must be in [1, frames_per_batch / action_repeat"
                          f" = {batch // k}], got {cfg.loss.mini_batch_size}")

@@ -24,15 +24,18 @@ from pathlib import Path
 
 import torch
 from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 from torch.utils._pytree import tree_map_only
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from torchrl.modules import ProbabilisticActor
+from tqdm import tqdm
 
 from torchpark import ParkingEnv
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.features import goal_in_vehicle_frame
 from torchpark.recording import record_video
+from trainers.checkpoint import load_checkpoint
 from trainers.config import TrainConfig
 from trainers.models import NORMALISED, make_ppo_models
 from trainers.ppo import parking_config, policy_input
@@ -45,9 +48,15 @@ COLUMNS = ("occupancy", "episodes", "success", "collision", "timeout", "grazing"
 
 
 def load(path: str) -> tuple[TrainConfig, dict]:
-    checkpoint = torch.load(path, weights_only=False, map_location="cpu")
-    merged = OmegaConf.merge(OmegaConf.structured(TrainConfig), checkpoint["config"])
-    return OmegaConf.to_object(merged), checkpoint
+    """The checkpoint's training config and contents (tensors on the CPU); ValueError naming
+    the path when it is not a torchpark checkpoint."""
+    checkpoint = load_checkpoint(path)
+    try:
+        merged = OmegaConf.merge(OmegaConf.structured(TrainConfig), checkpoint["config"])
+        return OmegaConf.to_object(merged), checkpoint
+    except OmegaConfBaseException as err:
+        raise ValueError(f"checkpoint {str(path)!r} has an invalid config: "
+                         f"{str(err).splitlines()[0]}") from None
 
 
 def make_eval_env(cfg: TrainConfig, checkpoint: dict, occupancy: float, num_envs: int,
@@ -123,9 +132,11 @@ class Episodes:
         return self.timeout & (moved < FREEZE_DISTANCE)
 
 
-def run_episodes(actor, env: TransformedEnv, max_steps: int) -> Episodes:
+def run_episodes(actor, env: TransformedEnv, max_steps: int, desc: str | None = None
+                 ) -> Episodes:
     """Run the deterministic policy until every lot's first episode has ended. No row is
-    reset: a row that ended steps on, unrecorded, until the last one ends."""
+    reset: a row that ended steps on, unrecorded, until the last one ends. With ``desc``, a
+    progress bar of the episodes ended so far, so labelled."""
     base = env.base_env
     n = base.num_envs
     ended = torch.zeros(n, dtype=torch.bool)
@@ -138,6 +149,7 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int) -> Episodes:
     docked = torch.zeros(n, dtype=torch.bool)
     td = env.reset()
     poses = [base.state.pose.cpu()]
+    bar = tqdm(total=n, desc=desc, unit="episode", disable=desc is None, leave=False)
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
         for step in range(1, max_steps + 1):
             td = env.step(actor(td))
@@ -152,9 +164,11 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int) -> Episodes:
             steps[first] = base.state.steps.cpu()[first].float()
             poses.append(torch.where(ended[:, None], poses[-1], base.state.pose.cpu()))
             ended |= first
+            bar.update(int(first.sum()))
             if bool(ended.all()):
                 break
             td = step_mdp(td)
+    bar.close()
     return Episodes(outcome["success"], outcome["collision"], outcome["truncated"], length,
                     final, torch.stack(poses), base.state.goal_slot.cpu(), steps, braked,
                     docked, base.config.action_repeat)
@@ -164,7 +178,7 @@ def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
                    episodes: int, seed: int) -> dict[str, float]:
     """One episode in each of ``episodes`` lots at ``occupancy``: the row of the table."""
     env = make_eval_env(cfg, checkpoint, occupancy, episodes, seed)
-    run = run_episodes(actor, env, cfg.env.max_steps)
+    run = run_episodes(actor, env, cfg.env.max_steps, desc=f"occupancy {occupancy:.0%}")
     position, heading = run.position_error, run.heading_error
     return {
         "occupancy": occupancy, "episodes": episodes,
@@ -234,16 +248,29 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", default=None, help="directory (default: the checkpoint's)")
     parser.add_argument("--videos", choices=("mp4", "gif", "none"), default="mp4",
                         help="one rollout video per occupancy level, in --out")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace evaluation files already in --out (refused by default)")
     parser.add_argument("--device", default=None,
                         help="torch device of the envs and the policy (default: the training's)")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
     out = Path(args.out) if args.out else Path(args.checkpoint).parent
-    out.mkdir(parents=True, exist_ok=True)
-    rows = evaluate(args.checkpoint, args.episodes, seed=args.seed,
-                    videos=None if args.videos == "none" else out, video_format=args.videos,
-                    device=args.device)
+    outputs = [out / "evaluation.md", out / "evaluation.csv"]
+    if args.videos != "none":
+        outputs += [out / f"rollout_occ{round(100 * level)}.{args.videos}"
+                    for level in PAPER_LEVELS]
+    existing = [str(p) for p in outputs if p.exists()]
+    if existing and not args.overwrite:
+        parser.error(f"{existing[0]} exists ({len(existing)} of the outputs do): pass --out "
+                     f"another directory, or --overwrite to replace them")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        rows = evaluate(args.checkpoint, args.episodes, seed=args.seed,
+                        videos=None if args.videos == "none" else out,
+                        video_format=args.videos, device=args.device)
+    except (ValueError, OSError) as err:
+        parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
     table = to_markdown(rows)
     (out / "evaluation.md").write_text(table + "\n")
     with open(out / "evaluation.csv", "w", newline="") as f:

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import torch
+from omegaconf.errors import OmegaConfBaseException
 from tensordict import TensorDict
 from torchrl.collectors import Collector
 from torchrl.envs import (
@@ -35,10 +36,7 @@ from torchrl.record.loggers import TensorboardLogger
 from tqdm import tqdm
 
 from torchpark import (
-    DockingConfig,
-    LotConfig,
     OccupancyCurriculum,
-    ParkingConfig,
     ParkingEnv,
     RewardConfig,
     SuccessCurriculum,
@@ -46,34 +44,12 @@ from torchpark import (
 )
 from torchpark.actions import PowerActionMap
 from torchpark.features import GoalFrameFeatures
-from trainers.config import TrainConfig, load_config
+from trainers.checkpoint import RESUME_KEYS, load_checkpoint
+from trainers.config import TrainConfig, load_config, parking_config
 from trainers.models import NORMALISED, make_ppo_models
 
 # Config sections a checkpoint must share with the run that resumes it.
 _MODEL_SECTIONS = ("env", "model", "curriculum")
-
-
-def parking_config(cfg: TrainConfig, training: bool) -> ParkingConfig:
-    """The env's config for this run. What the agent is (held actions, the brake, the docking
-    layer) is the same in training and evaluation; the training aids (success threshold,
-    brake penalty, near-goal starts) apply only with ``training``, evaluation keeps the
-    paper's."""
-    config = ParkingConfig(max_steps=cfg.env.max_steps, action_repeat=cfg.env.action_repeat,
-                           emergency_brake=cfg.env.emergency_brake,
-                           steer_clear=cfg.env.steer_clear,
-                           docking=DockingConfig(reach=cfg.env.docking_reach,
-                                                 lateral=cfg.env.docking_lateral,
-                                                 heading=cfg.env.docking_heading)
-                           if cfg.env.docking else None)
-    if not training:
-        return config
-    return dataclasses.replace(
-        config, reward=RewardConfig(success_threshold=cfg.env.success_threshold,
-                                    brake_penalty=cfg.env.brake_penalty),
-        lot=LotConfig(near_goal_starts=cfg.env.near_goal_starts,
-                      near_goal_reach=cfg.env.near_goal_reach,
-                      near_goal_lateral=cfg.env.near_goal_lateral,
-                      near_goal_heading=cfg.env.near_goal_heading))
 
 
 def make_env(cfg: TrainConfig) -> TransformedEnv:
@@ -147,21 +123,39 @@ def episode_stats(batch: TensorDict, repeat: int = 1) -> dict[str, float]:
     }
 
 
-def check_log_dir(path: Path) -> None:
+# What a run writes into its directory (logger.log_dir / logger.exp_name).
+RUN_FILES = ("checkpoint_*.pt", "events.out.tfevents.*")
+
+
+def check_log_dir(path: Path, resume: str | None, overwrite: bool) -> None:
+    """Make the run directory; refuse one that holds another run's files, unless this run
+    resumes a checkpoint from it (it goes on with that run) or ``overwrite`` (they are
+    deleted)."""
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise ValueError(f"logger.log_dir {str(path)!r} cannot be created: {err}") from err
     if not os.access(path, os.W_OK):
         raise ValueError(f"logger.log_dir {str(path)!r} is not writable")
+    existing = sorted(f for pattern in RUN_FILES for f in path.glob(pattern))
+    continues = resume is not None and Path(resume).resolve().parent == path.resolve()
+    if not existing or continues:
+        return
+    if not overwrite:
+        raise ValueError(f"{str(path)!r} already holds a run ({len(existing)} files, e.g. "
+                         f"{existing[0].name}): choose another logger.exp_name or "
+                         f"logger.log_dir, --resume one of its checkpoints, or pass "
+                         f"--overwrite to delete them")
+    for f in existing:
+        f.unlink()
 
 
-def train(cfg: TrainConfig, resume: str | None = None) -> Path:
-    """Run PPO; returns the path of the final checkpoint."""
+def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) -> Path:
+    """Run PPO; returns the path of the final checkpoint. A run directory that holds another
+    run is refused unless ``overwrite`` (see :func:`check_log_dir`)."""
     run_dir = Path(cfg.logger.log_dir) / cfg.logger.exp_name
-    check_log_dir(run_dir)
-    checkpoint = torch.load(resume, weights_only=False, map_location=cfg.env.device) \
-        if resume else None
+    check_log_dir(run_dir, resume, overwrite)
+    checkpoint = load_checkpoint(resume, cfg.env.device, RESUME_KEYS) if resume else None
     if checkpoint is not None:
         saved = checkpoint["config"]
         for section in _MODEL_SECTIONS:
@@ -213,6 +207,9 @@ def train(cfg: TrainConfig, resume: str | None = None) -> Path:
         return path
 
     next_checkpoint = (frames // cfg.logger.checkpoint_every + 1) * cfg.logger.checkpoint_every
+    if cfg.env.compile_step:
+        print("compiling the env's step and reset for the first batch (tens of seconds) ...",
+              flush=True)
     bar = tqdm(total=cfg.collector.total_frames, initial=frames, unit="frame", smoothing=0.1)
     collect_start = time.perf_counter()
     for batch in collector:
@@ -268,8 +265,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--preset", default="fast", help="paper, fast or smoke")
     parser.add_argument("--resume", default=None, help="checkpoint to continue from")
     parser.add_argument("overrides", nargs="*", help="config fields as key=value")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="delete the checkpoints and logs of a run already in the run's "
+                             "directory (by default such a directory is refused)")
     args = parser.parse_intermixed_args(argv)
-    path = train(load_config(args.preset, args.overrides), resume=args.resume)
+    try:
+        path = train(load_config(args.preset, args.overrides), resume=args.resume,
+                     overwrite=args.overwrite)
+    except (ValueError, OmegaConfBaseException) as err:
+        parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
     print(f"final checkpoint: {path}")
 
 
