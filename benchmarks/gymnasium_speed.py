@@ -60,7 +60,7 @@ def torchrl_speed(n: int, seconds: float, compiled: bool) -> float:
 
 
 def gymnasium_speed(n: int, seconds: float, compiled: bool) -> float:
-    kwargs = {"occupancy": 0.5, "seed": 0, "compile_step": compiled}
+    kwargs = {"occupancy": 0.5, "seed": 0, "compile_step": compiled, "physical_actions": True}
     batch = actions(n)
     i = 0
     if n == 1:

@@ -3,10 +3,14 @@
 :class:`ParkingEnv` (N = 1 for the single env; no loop over N copies for the vector env).
 
 Keyword arguments of ``make``/``make_vec``: ``occupancy``, ``device``, ``seed`` (the initial
-seed; ``reset(seed=...)`` reseeds), ``compile_step``, ``config`` (a :class:`ParkingConfig`) and
-any :class:`ParkingConfig` field (``max_steps=500``, ``reward=RewardConfig(...)``), which
-replaces that field of ``config``.
+seed; ``reset(seed=...)`` reseeds), ``compile_step``, ``physical_actions``, ``config`` (a
+:class:`ParkingConfig`) and any :class:`ParkingConfig` field (``max_steps=500``,
+``reward=RewardConfig(...)``), which replaces that field of ``config``.
 
+Actions: by default the normalised Box [-1, 1]^2 that Gymnasium's ``check_env`` and
+Stable-Baselines3 ask for, mapped linearly onto the paper's (v, delta) =
+(u0 * max_speed m/s, u1 * max_steer rad), i.e. +-5 m/s and +-0.785 rad. With
+``physical_actions=True`` the action Box is the paper's own [-5, 5] m/s x [-0.785, 0.785] rad.
 Actions must lie in the action Box and be finite (ValueError otherwise): the torchrl env clamps
 out-of-range actions, a Gymnasium env states its bounds instead. Observations are the paper's
 23 floats (see :class:`ParkingEnv`).
@@ -40,13 +44,19 @@ def _make_batched(num_envs: int, occupancy: float | None, device: torch.device |
     unknown = sorted(set(fields) - names)
     if unknown:
         raise TypeError(f"unknown keyword arguments {unknown}: expected occupancy, device, "
-                        f"seed, compile_step, config, render_mode or ParkingConfig fields "
-                        f"{sorted(names)}")
+                        f"seed, compile_step, physical_actions, config, render_mode or "
+                        f"ParkingConfig fields {sorted(names)}")
     config = dataclasses.replace(config, **fields)
     env = ParkingEnv(num_envs, device=device, seed=seed, config=config, compile_step=compile_step)
     if occupancy is not None:
         env.occupancy = occupancy
     return env
+
+
+def _check_flag(value: Any, name: str) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be a bool, got {value!r}")
+    return bool(value)
 
 
 def _check_render_mode(render_mode: str | None) -> str | None:
@@ -55,8 +65,10 @@ def _check_render_mode(render_mode: str | None) -> str | None:
     return render_mode
 
 
-def _spaces(env: ParkingEnv) -> tuple[spaces.Box, spaces.Box]:
-    """The single env's observation and action Boxes (float32)."""
+def _spaces(env: ParkingEnv, physical_actions: bool
+            ) -> tuple[spaces.Box, spaces.Box, torch.Tensor]:
+    """The single env's observation and action Boxes (float32), and the factor (2,) from an
+    action in the Box to the env's (v m/s, delta rad)."""
     veh, n_rays = env.config.vehicle, env.config.lidar.n_rays
     # The goal lies in the lot; the rear axle lies inside the car's box, which the colliding
     # step moves at most max_speed * dt past a wall's inner face.
@@ -66,9 +78,11 @@ def _spaces(env: ParkingEnv) -> tuple[spaces.Box, spaces.Box]:
     low = -high
     low[7:] = 0.0
     observation = spaces.Box(low, high, dtype=np.float32)
-    action = spaces.Box(np.array([-veh.max_speed, -veh.max_steer], np.float32),
-                        np.array([veh.max_speed, veh.max_steer], np.float32), dtype=np.float32)
-    return observation, action
+    limits = np.array([veh.max_speed, veh.max_steer], np.float32)
+    bound = limits if physical_actions else np.ones(2, np.float32)
+    action = spaces.Box(-bound, bound, dtype=np.float32)
+    scale = torch.from_numpy(limits / bound).to(env.device)
+    return observation, action, scale
 
 
 def _checked_actions(actions: Any, space: spaces.Box, shape: tuple[int, ...],
@@ -83,9 +97,8 @@ def _checked_actions(actions: Any, space: spaces.Box, shape: tuple[int, ...],
         raise ValueError(f"action must be finite (no NaN or inf), got {array.tolist()}")
     outside = ((array < space.low) | (array > space.high)).reshape(-1, 2).any(-1)
     if outside.any():
-        raise ValueError(f"action must lie in v in [{space.low[0]}, {space.high[0]}] m/s and "
-                         f"delta in [{space.low[1]}, {space.high[1]}] rad, got "
-                         f"{array.reshape(-1, 2)[outside].tolist()}")
+        raise ValueError(f"action must lie in the action Box [{space.low.tolist()}, "
+                         f"{space.high.tolist()}], got {array.reshape(-1, 2)[outside].tolist()}")
     return torch.from_numpy(array).to(device)
 
 
@@ -121,11 +134,12 @@ class ParkingGymEnv(gymnasium.Env):
 
     def __init__(self, render_mode: str | None = None, *, occupancy: float | None = None,
                  device: torch.device | str = "cpu", seed: int | None = None,
-                 compile_step: bool = False, config: ParkingConfig | None = None,
-                 **fields: Any) -> None:
+                 compile_step: bool = False, physical_actions: bool = False,
+                 config: ParkingConfig | None = None, **fields: Any) -> None:
         self.render_mode = _check_render_mode(render_mode)
         self.env = _make_batched(1, occupancy, device, seed, compile_step, config, fields)
-        self.observation_space, self.action_space = _spaces(self.env)
+        self.observation_space, self.action_space, self._scale = _spaces(
+            self.env, _check_flag(physical_actions, "physical_actions"))
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.env.config.vehicle.dt)}
         self._action = TensorDict({"action": torch.zeros(1, 2, device=self.env.device)},
                                   batch_size=[1], device=self.env.device)
@@ -138,7 +152,7 @@ class ParkingGymEnv(gymnasium.Env):
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         self._action["action"] = _checked_actions(action, self.action_space, (2,),
-                                                  self.env.device)[None]
+                                                  self.env.device)[None] * self._scale
         nxt = self.env.step(self._action)["next"]
         return (nxt["observation"][0].cpu().numpy(), float(nxt["reward"][0, 0]),
                 bool(nxt["terminated"][0, 0]), bool(nxt["truncated"][0, 0]), self._info(nxt))
@@ -174,13 +188,14 @@ class ParkingVectorEnv(VectorEnv):
     def __init__(self, num_envs: int, render_mode: str | None = None, *,
                  occupancy: float | None = None, device: torch.device | str = "cpu",
                  seed: int | None = None, compile_step: bool = False,
-                 config: ParkingConfig | None = None, render_envs: int = 16,
-                 **fields: Any) -> None:
+                 physical_actions: bool = False, config: ParkingConfig | None = None,
+                 render_envs: int = 16, **fields: Any) -> None:
         self.render_mode = _check_render_mode(render_mode)
         self.env = _make_batched(num_envs, occupancy, device, seed, compile_step, config, fields)
         self.num_envs = num_envs
         self.render_envs = min(render_envs, num_envs)
-        self.single_observation_space, self.single_action_space = _spaces(self.env)
+        self.single_observation_space, self.single_action_space, self._scale = _spaces(
+            self.env, _check_flag(physical_actions, "physical_actions"))
         self.observation_space = gymnasium.vector.utils.batch_space(
             self.single_observation_space, num_envs)
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, num_envs)
@@ -200,7 +215,7 @@ class ParkingVectorEnv(VectorEnv):
         if self._td is None:
             raise RuntimeError("call reset() before step()")
         self._td["action"] = _checked_actions(actions, self.single_action_space,
-                                              (self.num_envs, 2), self.env.device)
+                                              (self.num_envs, 2), self.env.device) * self._scale
         out, self._td = self.env.step_and_maybe_reset(self._td)
         nxt = out["next"]
         done = nxt["done"][:, 0].cpu().numpy()
