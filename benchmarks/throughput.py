@@ -243,7 +243,9 @@ def main() -> None:
                         f"| {best['syncs']:.1f} |")
             rows[path].append(row)
             print(row, flush=True)
-    print("\n" + head + extra + "\n" + "\n".join(row for path in args.paths for row in rows[path]))
+    rule = "|---" * (len(args.modes) + 3 + (3 if cuda else 0)) + "|"
+    print("\n" + head + extra + "\n" + rule + "\n"
+          + "\n".join(row for path in args.paths for row in rows[path]))
     if args.profile:
         profile(args.profile, args.device, args, args.profile_out)
 
