@@ -1,4 +1,4 @@
-"""An independent single-env reference of SPEC.md, in plain Python and numpy (float64).
+"""An independent single-env reference of docs/spec.md, in plain Python and numpy (float64).
 
 It shares no code with ``torchpark`` beyond reading the lot it is given: collision is a SAT on
 projected corners (not the centre/half-extent form), LIDAR intersects each ray with each box

@@ -185,5 +185,5 @@ def test_bad_docking_config_is_rejected_by_name(field, value):
 
 
 def test_docking_must_be_a_docking_config():
-    with pytest.raises(ValueError, match=r"ParkingConfig\.docking"):
+    with pytest.raises(TypeError, match=r"ParkingConfig\.docking must be a DockingConfig or None"):
         ParkingConfig(docking=True)

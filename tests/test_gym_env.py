@@ -178,6 +178,8 @@ def test_vector_env_rejects_bad_actions():
         env.reset(seed=[1, 2, 3, 4])
     with pytest.raises(RuntimeError, match="reset"):
         ParkingVectorEnv(2).step(np.zeros((2, 2), np.float32))
+    with pytest.raises(RuntimeError, match="before reset"):
+        ParkingVectorEnv(2, render_mode="rgb_array").render()
 
 
 def test_bad_construction_is_a_clear_error():

@@ -73,7 +73,8 @@ def test_unknown_preset_or_field_is_an_error():
 def test_checkpoint_from_another_config_is_refused(smoke_run, tmp_path):
     _, final = smoke_run
     other = load_config("smoke", ["model.hidden=[32,32]", f"logger.log_dir={tmp_path}"])
-    with pytest.raises(ValueError, match="trained with another model config"):
+    with pytest.raises(ValueError, match=r"trained with another model config: model\.hidden="
+                                         r"\[64, 64\] in the checkpoint, \[32, 32\] now"):
         train(other, resume=str(final))
 
 

@@ -1,4 +1,4 @@
-"""Typed, frozen configuration with the paper's values (and SPEC.md's choices) as defaults.
+"""Typed, frozen configuration with the paper's values (and docs/spec.md's choices) as defaults.
 
 Units: metres, seconds, radians. Every value is checked when the dataclass is built, so an
 impossible configuration fails at construction with the field's name and its allowed range.

@@ -159,9 +159,15 @@ def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) 
     if checkpoint is not None:
         saved = checkpoint["config"]
         for section in _MODEL_SECTIONS:
-            if saved[section] != dataclasses.asdict(getattr(cfg, section)):
+            now = dataclasses.asdict(getattr(cfg, section))
+            old = saved.get(section, {})
+            differ = {f"{section}.{k}": (old.get(k), now.get(k))
+                      for k in sorted(set(old) | set(now)) if old.get(k) != now.get(k)}
+            if differ:
+                listed = ", ".join(f"{k}={a!r} in the checkpoint, {b!r} now"
+                                   for k, (a, b) in differ.items())
                 raise ValueError(f"checkpoint {resume!r} was trained with another {section} "
-                                 f"config: {saved[section]}")
+                                 f"config: {listed}")
     torch.manual_seed(cfg.seed)
 
     env = make_env(cfg)
