@@ -535,3 +535,25 @@ def test_the_demo_follows_its_seed(capsys):
         return capsys.readouterr().out.splitlines()[-1]  # episodes and mean reward
 
     assert report(0) == report(0) != report(1)
+
+
+def test_constructor_flags_and_the_threshold_are_checked_by_type():
+    with pytest.raises(TypeError, match="compile_step must be a bool"):
+        ParkingEnv(2, compile_step="no")
+    with pytest.raises(TypeError, match="validate_actions must be a bool"):
+        ParkingEnv(2, validate_actions=1)
+    with pytest.raises(TypeError, match="compile_kwargs must be a dict or None"):
+        ParkingEnv(2, compile_kwargs=["max-autotune"])
+    env = ParkingEnv(np.int64(2), seed=0)
+    env.success_threshold = np.float32(1e-3)
+    assert env.success_threshold == pytest.approx(1e-3)
+    with pytest.raises(ValueError, match="success_threshold must be a finite float > 0"):
+        env.success_threshold = True
+
+
+def test_an_action_on_another_device_is_refused_by_name():
+    env = ParkingEnv(2, seed=0)
+    env.reset()
+    action = torch.zeros(2, 2, device="meta")
+    with pytest.raises(ValueError, match="action must be on the env's device cpu, got meta"):
+        env._step(TensorDict({"action": action}, batch_size=[2]))

@@ -277,3 +277,23 @@ def test_a_bad_training_field_is_one_line_naming_it(override, name, capsys):
     err = capsys.readouterr().err
     assert refused.value.code == 2 and name in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def _leaf_fields():
+    from trainers.config import TrainConfig
+
+    for section in dataclasses.fields(TrainConfig):
+        if section.name == "seed":
+            yield "seed"
+            continue
+        for f in dataclasses.fields(section.default_factory()):
+            yield f"{section.name}.{f.name}"
+
+
+# Free-form strings: any folder name is a valid log_dir / exp_name (exp_name's '/' is refused
+# by a test above).
+@pytest.mark.parametrize("key", [k for k in _leaf_fields()
+                                 if k not in ("logger.log_dir", "logger.exp_name")])
+def test_every_training_field_rejects_a_wrong_type_by_name(key):
+    with pytest.raises(ValueError, match=rf"^{key}:? "):
+        load_config("smoke", [f"{key}=not_a_value_of_its_type"])

@@ -121,17 +121,19 @@ class LotConfig:
                  "a finite number >= 0", self.margin)
         for name in ("upper_slots", "left_slots", "middle_slots", "right_slots"):
             n = getattr(self, name)
-            _require(isinstance(n, int) and 1 <= n, f"LotConfig.{name}", "an int >= 1", n)
+            _require(1 <= n <= 100, f"LotConfig.{name}", "an int in [1, 100]", n)
         _require(self.middle_slots % 2 == 0, "LotConfig.middle_slots", "even", self.middle_slots)
         _require(
             self.car_width < self.slot_width and self.car_length < self.slot_length,
             "LotConfig.car_width/car_length", "smaller than the slot",
             (self.car_width, self.car_length),
         )
-        _require(self.start_candidates >= 0, "LotConfig.start_candidates", ">= 0",
-                 self.start_candidates)
-        _require(self.start_pool_size >= 1, "LotConfig.start_pool_size", ">= 1",
-                 self.start_pool_size)
+        # Upper bounds on the sizes that set tensor shapes: a typo must not allocate the
+        # machine's memory (each is far above what the task uses).
+        _require(0 <= self.start_candidates <= 1024, "LotConfig.start_candidates",
+                 "an int in [0, 1024]", self.start_candidates)
+        _require(1 <= self.start_pool_size <= 2**20, "LotConfig.start_pool_size",
+                 "an int in [1, 2**20]", self.start_pool_size)
         _require(0 <= self.pool_seed < 2**63, "LotConfig.pool_seed", "an int in [0, 2**63)",
                  self.pool_seed)
         _require(0.0 <= self.near_goal_starts <= 1.0, "LotConfig.near_goal_starts", "in [0, 1]",
@@ -140,8 +142,8 @@ class LotConfig:
             value = getattr(self, name)
             _require(math.isfinite(value) and value >= 0, f"LotConfig.{name}", "finite, >= 0",
                      value)
-        _require(isinstance(self.near_goal_candidates, int) and self.near_goal_candidates >= 1,
-                 "LotConfig.near_goal_candidates", "an int >= 1", self.near_goal_candidates)
+        _require(1 <= self.near_goal_candidates <= 1024, "LotConfig.near_goal_candidates",
+                 "an int in [1, 1024]", self.near_goal_candidates)
 
     @property
     def num_slots(self) -> int:
@@ -157,8 +159,8 @@ class LidarConfig:
 
     def __post_init__(self) -> None:
         _check_types(self)
-        _require(isinstance(self.n_rays, int) and self.n_rays >= 1, "LidarConfig.n_rays",
-                 "an int >= 1", self.n_rays)
+        _require(1 <= self.n_rays <= 1024, "LidarConfig.n_rays", "an int in [1, 1024]",
+                 self.n_rays)
         _positive("LidarConfig.max_range", self.max_range)
 
 

@@ -8,6 +8,7 @@ The class is plumbing: specs, seeding, action checks, and reset muxing. The phys
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Sequence
 from functools import partial
 
@@ -76,8 +77,15 @@ class ParkingEnv(EnvBase):
         compile_kwargs: dict | None = None,
         validate_actions: bool = True,
     ) -> None:
-        if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) \
+                or num_envs < 1:
             raise ValueError(f"num_envs must be an int >= 1, got {num_envs!r}")
+        num_envs = int(num_envs)
+        for name, flag in (("compile_step", compile_step), ("validate_actions", validate_actions)):
+            if not isinstance(flag, (bool, np.bool_)):
+                raise TypeError(f"{name} must be a bool, got {flag!r}")
+        if compile_kwargs is not None and not isinstance(compile_kwargs, dict):
+            raise TypeError(f"compile_kwargs must be a dict or None, got {compile_kwargs!r}")
         if config is not None and not isinstance(config, ParkingConfig):
             raise TypeError(f"config must be a ParkingConfig, got {type(config).__name__}")
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
@@ -134,7 +142,7 @@ class ParkingEnv(EnvBase):
 
     @success_threshold.setter
     def success_threshold(self, value: float) -> None:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) \
                 or not math.isfinite(value) or value <= 0:
             raise ValueError(f"success_threshold must be a finite float > 0, got {value!r}")
         self._success_threshold.fill_(float(value))
@@ -283,6 +291,9 @@ class ParkingEnv(EnvBase):
                 f"action must have shape ({self.num_envs}, 2) = (num_envs, [v, delta]), "
                 f"got {tuple(action.shape)}"
             )
+        if action.device != self.device:
+            raise ValueError(f"action must be on the env's device {self.device}, got "
+                             f"{action.device}")
         if action.dtype not in (torch.float32, torch.float64):
             raise ValueError(f"action must be float32 (or float64, rounded to float32), got "
                              f"{action.dtype}")

@@ -11,6 +11,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, field, replace
 
+import torch
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
@@ -244,6 +245,11 @@ def _check(cfg: TrainConfig) -> None:
     _require(c.success_window >= 1, "curriculum.success_window", "an int >= 1",
              c.success_window)
     _require(cfg.seed >= 0, "seed", "an int >= 0", cfg.seed)
+    try:
+        torch.device(cfg.env.device)
+    except RuntimeError:
+        raise ValueError(f"env.device must be a torch device such as 'cpu' or 'cuda:0', got "
+                         f"{cfg.env.device!r}") from None
     for training in (True, False):  # the env's fields, as torchpark checks them
         try:
             parking_config(cfg, training)
