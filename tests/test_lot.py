@@ -182,7 +182,7 @@ def test_near_goal_starts_are_mixed_by_their_probability():
     ({"near_goal_starts": 1.5}, r"near_goal_starts must be in \[0, 1\]"),
     ({"near_goal_reach": -1.0}, "near_goal_reach must be finite, >= 0"),
     ({"near_goal_heading": math.inf}, "near_goal_heading must be finite, >= 0"),
-    ({"near_goal_candidates": 0}, "near_goal_candidates must be an int >= 1"),
+    ({"near_goal_candidates": 0}, r"near_goal_candidates must be an int in \[1, 1024\]"),
 ])
 def test_bad_near_goal_options_raise(kwargs, match):
     with pytest.raises(ValueError, match=match):
