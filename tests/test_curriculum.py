@@ -186,6 +186,9 @@ def test_bad_success_threshold_raises(value):
     ({"factor": 1.0}, r"factor must be in \(0, 1\)"),
     ({"target": 0.0}, r"target must be in \(0, 1\]"),
     ({"window": 0}, "window must be an int >= 1"),
+    ({"start": True}, "start must be a finite number"),
+    ({"factor": float("nan")}, "factor must be a finite number"),
+    ({"target": "0.5"}, "target must be a finite number"),
 ])
 def test_success_curriculum_bad_arguments_raise(kwargs, match):
     with pytest.raises(ValueError, match=match):

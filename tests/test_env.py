@@ -461,6 +461,8 @@ def test_step_and_render_before_reset_raise():
     with pytest.raises(RuntimeError, match="before reset"):
         env.render()
     env.reset()
+    with pytest.raises(IndexError, match="indices must be ints"):
+        env.render_grid([True])
     assert not act(env, [0.0, 0.0])["success"].any()  # a real lot: nobody starts on the goal
 
 
@@ -486,9 +488,9 @@ def test_action_dtypes_float64_is_rounded_the_others_refused():
             first.step(TensorDict({"action": a.to(dtype)}, batch_size=[6]))
 
 
-@pytest.mark.parametrize("seed", [1.5, True, "1", np.bool_(True)])
+@pytest.mark.parametrize("seed", [1.5, True, "1", np.bool_(True), -1, 2**64])
 def test_a_seed_that_is_not_an_int_raises(seed):
-    with pytest.raises(ValueError, match="seed must be an int or None"):
+    with pytest.raises(ValueError, match=r"seed must be an int in \[0, 2\*\*63\) or None"):
         ParkingEnv(2, seed=seed)
 
 

@@ -4,8 +4,11 @@
 
 from __future__ import annotations
 
+import math
+import numbers
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs.transforms import Transform
@@ -132,6 +135,11 @@ class SuccessCurriculum(_Curriculum):
     def __init__(self, start: float, final: float = 4e-4, factor: float = 0.5,
                  target: float = 0.5, window: int = 163_840) -> None:
         super().__init__()
+        for name, value in (("start", start), ("final", final), ("factor", factor),
+                            ("target", target)):
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) \
+                    or not math.isfinite(value):
+                raise ValueError(f"{name} must be a finite number, got {value!r}")
         for name, value, ok, bounds in (("start", start, start > 0, "> 0"),
                                         ("final", final, 0 < final <= start, "in (0, start]"),
                                         ("factor", factor, 0 < factor < 1, "in (0, 1)"),

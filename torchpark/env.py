@@ -179,8 +179,9 @@ class ParkingEnv(EnvBase):
     # ------------------------------------------------------------------ seeding and state
     def _set_seed(self, seed: int | None) -> None:
         if seed is not None and (isinstance(seed, (bool, np.bool_))
-                                 or not isinstance(seed, (int, np.integer))):
-            raise ValueError(f"seed must be an int or None, got {seed!r}")
+                                 or not isinstance(seed, (int, np.integer))
+                                 or not 0 <= seed < 2**63):
+            raise ValueError(f"seed must be an int in [0, 2**63) or None, got {seed!r}")
         if seed is None:
             seed = int(torch.randint(0, 2**62, (), dtype=torch.int64))
         self._generator.manual_seed(int(seed))
@@ -234,6 +235,10 @@ class ParkingEnv(EnvBase):
         """Pictures of several envs' lots (default: all) tiled row by row into one image."""
         if not self._started:
             raise RuntimeError("ParkingEnv.render before reset: call env.reset() first")
+        if indices is not None and any(isinstance(i, (bool, np.bool_))
+                                       or not isinstance(i, (int, np.integer)) for i in indices):
+            raise IndexError(f"indices must be ints in [0, {self.num_envs - 1}], got "
+                             f"{list(indices)}")
         indices = list(range(self.num_envs)) if indices is None else [int(i) for i in indices]
         bad = [i for i in indices if not 0 <= i < self.num_envs]
         if bad or not indices:
