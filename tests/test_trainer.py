@@ -270,6 +270,7 @@ def test_action_repeat_must_divide_the_batch():
     ("env.max_steps=0", "ParkingConfig.max_steps"), ("logger.exp_name=a/b", "logger.exp_name"),
     ("env.num_envs=true", "num_envs"), ("env.max_steps=1.5", "max_steps"),
     ("env.emergency_brake=maybe", "emergency_brake"),
+    *([] if torch.cuda.is_available() else [("env.device=cuda", "env.device")]),
 ])
 def test_a_bad_training_field_is_one_line_naming_it(override, name, capsys):
     with pytest.raises(SystemExit) as refused:

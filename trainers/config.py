@@ -205,6 +205,17 @@ def parking_config(cfg: TrainConfig, training: bool) -> ParkingConfig:
                       near_goal_heading=cfg.env.near_goal_heading))
 
 
+def check_device(device: str, name: str) -> None:
+    """A device string torch parses and this machine has; ValueError naming ``name``."""
+    try:
+        parsed = torch.device(device)
+    except RuntimeError:
+        raise ValueError(f"{name} must be a torch device such as 'cpu' or 'cuda:0', got "
+                         f"{device!r}") from None
+    if parsed.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"{name} is {device!r}, but torch sees no CUDA device here")
+
+
 def _require(ok: bool, name: str, allowed: str, value: object) -> None:
     if not ok:
         raise ValueError(f"{name} must be {allowed}, got {value!r}")
@@ -245,11 +256,7 @@ def _check(cfg: TrainConfig) -> None:
     _require(c.success_window >= 1, "curriculum.success_window", "an int >= 1",
              c.success_window)
     _require(cfg.seed >= 0, "seed", "an int >= 0", cfg.seed)
-    try:
-        torch.device(cfg.env.device)
-    except RuntimeError:
-        raise ValueError(f"env.device must be a torch device such as 'cpu' or 'cuda:0', got "
-                         f"{cfg.env.device!r}") from None
+    check_device(cfg.env.device, "env.device")
     for training in (True, False):  # the env's fields, as torchpark checks them
         try:
             parking_config(cfg, training)

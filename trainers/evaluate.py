@@ -36,7 +36,7 @@ from torchpark.curriculum import PAPER_LEVELS
 from torchpark.features import goal_in_vehicle_frame
 from torchpark.recording import record_video
 from trainers.checkpoint import load_checkpoint
-from trainers.config import TrainConfig
+from trainers.config import TrainConfig, check_device
 from trainers.models import NORMALISED, make_ppo_models
 from trainers.ppo import parking_config, policy_input
 
@@ -217,6 +217,7 @@ def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
     cfg, checkpoint = load(path)
     if device is not None:
         cfg.env.device = device
+    check_device(cfg.env.device, "the evaluation's device (the training's unless --device)")
     checkpoint = tree_map_only(torch.Tensor, lambda t: t.to(cfg.env.device), checkpoint)
     actor = make_policy(cfg, checkpoint)
     rows = []
@@ -265,6 +266,8 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"{existing[0]} exists ({len(existing)} of the outputs do): pass --out "
                      f"another directory, or --overwrite to replace them")
     try:
+        if args.device is not None:
+            check_device(args.device, "--device")
         out.mkdir(parents=True, exist_ok=True)
         rows = evaluate(args.checkpoint, args.episodes, seed=args.seed,
                         videos=None if args.videos == "none" else out,
