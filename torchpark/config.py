@@ -15,6 +15,24 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+def is_number(value: object) -> bool:
+    """A real number (Python or numpy) that is not a bool."""
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+def is_integer(value: object) -> bool:
+    """An integer (Python or numpy) that is not a bool."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
+
+
+def check_flag(value: object, name: str) -> bool:
+    """``value`` as a bool, or TypeError naming ``name`` when it is not one (a truthy string
+    or an int is not taken for a flag)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be a bool, got {value!r}")
+    return bool(value)
+
+
 def _check_types(config: object) -> None:
     """Every field of a config dataclass against its annotation, by name: bool fields take
     bools, int fields ints (not bools), float fields real numbers (not bools; ints and numpy
@@ -28,12 +46,11 @@ def _check_types(config: object) -> None:
         if value is None and type(None) in kinds:
             continue
         kind = next(k for k in kinds if k is not type(None))
-        is_bool = isinstance(value, (bool, np.bool_))
-        if kind is bool and is_bool:
+        if kind is bool and isinstance(value, (bool, np.bool_)):
             value = bool(value)
-        elif kind is int and isinstance(value, numbers.Integral) and not is_bool:
+        elif kind is int and is_integer(value):
             value = int(value)
-        elif kind is float and isinstance(value, numbers.Real) and not is_bool:
+        elif kind is float and is_number(value):
             value = float(value)
         elif kind not in (bool, int, float) and isinstance(value, kind):
             pass
@@ -267,8 +284,6 @@ class ParkingConfig:
 
     def __post_init__(self) -> None:
         _check_types(self)
-        _require(self.docking is None or isinstance(self.docking, DockingConfig),
-                 "ParkingConfig.docking", "None or a DockingConfig", self.docking)
         _require(1 <= self.max_steps <= _MAX_STEPS_LIMIT, "ParkingConfig.max_steps",
                  f"an int in [1, {_MAX_STEPS_LIMIT}]", self.max_steps)
         # A car that moves further in one step than the thinnest obstacle is thick could
@@ -278,11 +293,10 @@ class ParkingConfig:
         _require(stride < thinnest, "VehicleConfig.max_speed * dt",
                  f"< the thinnest obstacle, min(LotConfig.wall_thickness, car_width) = "
                  f"{thinnest} m (else the car can pass through it in one step)", stride)
-        _require(isinstance(self.action_repeat, int) and self.action_repeat >= 1,
-                 "ParkingConfig.action_repeat", "an int >= 1", self.action_repeat)
+        _require(self.action_repeat >= 1, "ParkingConfig.action_repeat", "an int >= 1",
+                 self.action_repeat)
         check_occupancy(self.occupancy, "ParkingConfig.occupancy")
-        _require(isinstance(self.steer_clear, int) and not isinstance(self.steer_clear, bool)
-                 and (self.steer_clear == 0 or self.steer_clear >= 2),
+        _require(self.steer_clear == 0 or self.steer_clear >= 2,
                  "ParkingConfig.steer_clear", "0 or an int >= 2", self.steer_clear)
         _require(self.steer_clear == 0 or self.emergency_brake, "ParkingConfig.steer_clear",
                  "0 without emergency_brake", self.steer_clear)
@@ -290,7 +304,5 @@ class ParkingConfig:
 
 def check_occupancy(value: float, name: str = "occupancy") -> float:
     """Return ``value`` as a float, or raise naming ``name`` when it is not in [0, 1]."""
-    ok = isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) \
-        and 0.0 <= value <= 1.0
-    _require(ok, name, "a number in [0, 1]", value)
+    _require(is_number(value) and 0.0 <= value <= 1.0, name, "a number in [0, 1]", value)
     return float(value)

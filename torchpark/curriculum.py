@@ -5,15 +5,13 @@
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Sequence
 
-import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs.transforms import Transform
 
-from torchpark.config import check_occupancy
+from torchpark.config import check_occupancy, is_number
 
 PAPER_LEVELS = (0.0, 0.2, 0.4, 0.6, 0.8, 0.9)
 
@@ -137,8 +135,7 @@ class SuccessCurriculum(_Curriculum):
         super().__init__()
         for name, value in (("start", start), ("final", final), ("factor", factor),
                             ("target", target)):
-            if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) \
-                    or not math.isfinite(value):
+            if not is_number(value) or not math.isfinite(value):
                 raise ValueError(f"{name} must be a finite number, got {value!r}")
         for name, value, ok, bounds in (("start", start, start > 0, "> 0"),
                                         ("final", final, 0 < final <= start, "in (0, start]"),

@@ -8,7 +8,6 @@ The class is plumbing: specs, seeding, action checks, and reset muxing. The phys
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Sequence
 from functools import partial
 
@@ -18,7 +17,13 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from torchpark.config import ParkingConfig, check_occupancy
+from torchpark.config import (
+    ParkingConfig,
+    check_flag,
+    check_occupancy,
+    is_integer,
+    is_number,
+)
 from torchpark.geometry import BoxFrame, box_frame
 from torchpark.lidar import line_rotation
 from torchpark.lot import build_layout, draw_goals_and_cars, draw_starts
@@ -77,13 +82,11 @@ class ParkingEnv(EnvBase):
         compile_kwargs: dict | None = None,
         validate_actions: bool = True,
     ) -> None:
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) \
-                or num_envs < 1:
+        if not is_integer(num_envs) or num_envs < 1:
             raise ValueError(f"num_envs must be an int >= 1, got {num_envs!r}")
         num_envs = int(num_envs)
-        for name, flag in (("compile_step", compile_step), ("validate_actions", validate_actions)):
-            if not isinstance(flag, (bool, np.bool_)):
-                raise TypeError(f"{name} must be a bool, got {flag!r}")
+        compile_step = check_flag(compile_step, "compile_step")
+        validate_actions = check_flag(validate_actions, "validate_actions")
         if compile_kwargs is not None and not isinstance(compile_kwargs, dict):
             raise TypeError(f"compile_kwargs must be a dict or None, got {compile_kwargs!r}")
         if config is not None and not isinstance(config, ParkingConfig):
@@ -142,8 +145,7 @@ class ParkingEnv(EnvBase):
 
     @success_threshold.setter
     def success_threshold(self, value: float) -> None:
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) \
-                or not math.isfinite(value) or value <= 0:
+        if not is_number(value) or not math.isfinite(value) or value <= 0:
             raise ValueError(f"success_threshold must be a finite float > 0, got {value!r}")
         self._success_threshold.fill_(float(value))
 
@@ -178,9 +180,7 @@ class ParkingEnv(EnvBase):
 
     # ------------------------------------------------------------------ seeding and state
     def _set_seed(self, seed: int | None) -> None:
-        if seed is not None and (isinstance(seed, (bool, np.bool_))
-                                 or not isinstance(seed, (int, np.integer))
-                                 or not 0 <= seed < 2**63):
+        if seed is not None and (not is_integer(seed) or not 0 <= seed < 2**63):
             raise ValueError(f"seed must be an int in [0, 2**63) or None, got {seed!r}")
         if seed is None:
             seed = int(torch.randint(0, 2**62, (), dtype=torch.int64))
@@ -225,7 +225,7 @@ class ParkingEnv(EnvBase):
     # ------------------------------------------------------------------ pictures
     def render(self, index: int = 0) -> np.ndarray:
         """Picture of env ``index``'s lot now, (H, W, 3) uint8 (see :mod:`torchpark.rendering`)."""
-        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) \
+        if not is_integer(index) \
                 or not 0 <= index < self.num_envs:
             raise IndexError(f"index must be an int in [0, {self.num_envs - 1}], got {index!r}")
         return self.render_grid([int(index)])
@@ -235,8 +235,7 @@ class ParkingEnv(EnvBase):
         """Pictures of several envs' lots (default: all) tiled row by row into one image."""
         if not self._started:
             raise RuntimeError("ParkingEnv.render before reset: call env.reset() first")
-        if indices is not None and any(isinstance(i, (bool, np.bool_))
-                                       or not isinstance(i, (int, np.integer)) for i in indices):
+        if indices is not None and not all(is_integer(i) for i in indices):
             raise IndexError(f"indices must be ints in [0, {self.num_envs - 1}], got "
                              f"{list(indices)}")
         indices = list(range(self.num_envs)) if indices is None else [int(i) for i in indices]

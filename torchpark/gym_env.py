@@ -28,7 +28,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from tensordict import TensorDict, TensorDictBase
 
-from torchpark.config import ParkingConfig
+from torchpark.config import ParkingConfig, check_flag
 from torchpark.env import ParkingEnv
 
 ENV_ID = "torchpark/Parking-v0"
@@ -51,12 +51,6 @@ def _make_batched(num_envs: int, occupancy: float | None, device: torch.device |
     if occupancy is not None:
         env.occupancy = occupancy
     return env
-
-
-def _check_flag(value: Any, name: str) -> bool:
-    if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{name} must be a bool, got {value!r}")
-    return bool(value)
 
 
 def _check_render_mode(render_mode: str | None) -> str | None:
@@ -139,7 +133,7 @@ class ParkingGymEnv(gymnasium.Env):
         self.render_mode = _check_render_mode(render_mode)
         self.env = _make_batched(1, occupancy, device, seed, compile_step, config, fields)
         self.observation_space, self.action_space, self._scale = _spaces(
-            self.env, _check_flag(physical_actions, "physical_actions"))
+            self.env, check_flag(physical_actions, "physical_actions"))
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.env.config.vehicle.dt)}
         self._action = TensorDict({"action": torch.zeros(1, 2, device=self.env.device)},
                                   batch_size=[1], device=self.env.device)
@@ -195,7 +189,7 @@ class ParkingVectorEnv(VectorEnv):
         self.num_envs = num_envs
         self.render_envs = min(render_envs, num_envs)
         self.single_observation_space, self.single_action_space, self._scale = _spaces(
-            self.env, _check_flag(physical_actions, "physical_actions"))
+            self.env, check_flag(physical_actions, "physical_actions"))
         self.observation_space = gymnasium.vector.utils.batch_space(
             self.single_observation_space, num_envs)
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, num_envs)

@@ -189,19 +189,18 @@ def _rejection_sample_pool(layout: LotLayout, vehicle: VehicleConfig, size: int,
     found: list[Tensor] = []
     count = 0
     for _ in range(_POOL_ROUNDS):
-        if count >= size:
-            break
         candidates = uniform_poses(layout, (4 * size,), generator)
         valid = candidates[start_pose_valid(candidates, layout.slots_and_walls, vehicle)]
         found.append(valid)
         count += valid.shape[0]
-    else:
-        if count < size:
-            raise ValueError(
-                f"VehicleConfig(length={vehicle.length}, width={vehicle.width}) has room for "
-                f"a start pose in {count} of {_POOL_ROUNDS * 4 * size} uniform draws over the "
-                f"lot: fewer than LotConfig.start_pool_size={size} valid starts; the car does "
-                f"not fit the lot's lanes (LotConfig.lane_width)")
+        if count >= size:
+            break
+    if count < size:
+        raise ValueError(
+            f"VehicleConfig(length={vehicle.length}, width={vehicle.width}) has room for a "
+            f"start pose in {count} of {_POOL_ROUNDS * 4 * size} uniform draws over the lot: "
+            f"fewer than LotConfig.start_pool_size={size} valid starts; the car does not fit "
+            f"the lot's lanes (LotConfig.lane_width)")
     return torch.cat(found)[:size]
 
 

@@ -266,8 +266,6 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"{existing[0]} exists ({len(existing)} of the outputs do): pass --out "
                      f"another directory, or --overwrite to replace them")
     try:
-        if args.device is not None:
-            check_device(args.device, "--device")
         out.mkdir(parents=True, exist_ok=True)
         rows = evaluate(args.checkpoint, args.episodes, seed=args.seed,
                         videos=None if args.videos == "none" else out,

@@ -15,7 +15,6 @@ import time
 from pathlib import Path
 
 import torch
-from omegaconf.errors import OmegaConfBaseException
 from tensordict import TensorDict
 from torchrl.collectors import Collector
 from torchrl.envs import (
@@ -278,7 +277,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         path = train(load_config(args.preset, args.overrides), resume=args.resume,
                      overwrite=args.overwrite)
-    except (ValueError, OmegaConfBaseException) as err:
+    except ValueError as err:
         parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
     print(f"final checkpoint: {path}")
 
