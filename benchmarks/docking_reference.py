@@ -4,13 +4,13 @@
         [--steer-clear 5]
 
 The success test ``C < 4e-4`` asks for about 1 mm, 0.1 deg and 4 mm/s at once. This script
-starts every episode in a box behind its goal (``LotConfig``'s near-goal poses: up to
+starts every episode in a box behind its goal (``NearGoalStarts``: up to
 ``back`` m back along the slot axis, ``side`` m to either side, ``heading`` rad off) and lets
-the docking layer (``torchpark.docking``, a fixed feedback law driving multi-point turns,
+the docking layer (``torchpark.aids.docking``, a fixed feedback law driving multi-point turns,
 its funnel as deep as ``DockingConfig``'s default and as wide as the box) drive, in the
 paper's env otherwise (no held actions; the policy's action is ignored), with the emergency
 brake under it unless ``--no-brake``, steering clear over ``--steer-clear`` angles
-(``ParkingConfig.steer_clear``; 0: the brake only stops). It prints per box and occupancy
+(``BrakeConfig.steer_clear``; 0: the brake only stops). It prints per box and occupancy
 the success (``C < 4e-4``), collision and braked rates of each env's first episode (1,000
 steps), as a Markdown table. The law knows nothing of parked cars but what the brake does
 (it turns back when stopped); without the brake its collisions are those of its own path.
@@ -23,8 +23,8 @@ import argparse
 import torch
 from torchrl.envs import TransformedEnv
 
-from torchpark import DockingConfig, LotConfig, ParkingConfig, ParkingEnv
-from trainers.evaluate import run_episodes
+from torchpark import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts, ParkingEnv
+from torchpark.runner import run_episodes
 
 _FUNNEL = DockingConfig()
 BOXES = [(1.5, 0.05, 0.05), (6.0, 0.1, 0.1), (6.0, 0.5, 0.35), (6.0, 1.0, 0.6), (6.0, 2.5, 1.6),
@@ -45,17 +45,17 @@ def main() -> None:
           "| collision | braked |")
     print("|---|---:|---:|---:|---:|")
     for back, side, heading in BOXES:
-        config = ParkingConfig(
-            lot=LotConfig(near_goal_starts=1.0, near_goal_reach=back, near_goal_lateral=side,
-                          near_goal_heading=heading, near_goal_candidates=32),
-            docking=DockingConfig(lateral=side, heading=heading), emergency_brake=args.brake,
-            steer_clear=args.steer_clear if args.brake else 0)
+        aids = AidsConfig(
+            near_goal_starts=NearGoalStarts(probability=1.0, reach=back, lateral=side,
+                                            heading=heading, candidates=32),
+            docking=DockingConfig(lateral=side, heading=heading),
+            brake=BrakeConfig(steer_clear=args.steer_clear) if args.brake else None)
         for occupancy in args.occupancies:
-            env = ParkingEnv(args.envs, seed=args.seed, config=config)
+            env = ParkingEnv(args.envs, seed=args.seed, aids=aids)
             env.occupancy = occupancy
             zeros = torch.zeros(args.envs, 2)  # ignored: every start is in the funnel
             run = run_episodes(lambda td, a=zeros: td.set("action", a), TransformedEnv(env),
-                               config.max_steps)
+                               env.config.max_steps)
             print(f"| {back}, ±{side}, ±{heading:.3g} | {occupancy:.0%} | "
                   f"{run.success.float().mean():.2f} | {run.collision.float().mean():.2f} | "
                   f"{run.braked.float().mean():.2f} |")

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from torchpark import ENV_ID, ParkingEnv
-from torchpark.recording import write_video
+from torchpark.media.recording import write_video
 
 
 def timed(step, seconds: float) -> float:

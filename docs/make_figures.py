@@ -4,7 +4,7 @@
 
 docs/lots.png: one lot at 0, 50 and 90 % occupancy (same goal and start, so only the parked
 cars differ). docs/rollout.gif: one episode of the committed policy (deterministic) at 40 %
-occupancy, drawn every step. docs/docking.png: the docking law alone (torchpark.docking)
+occupancy, drawn every step. docs/docking.png: the docking law alone (torchpark.aids.docking)
 from 24 starts in its default funnel at 50 % occupancy, with the emergency brake: the rear
 axle's path in the goal's frame (the multi-point turns), the heading error and the cost C
 against time, with the success threshold.
@@ -21,30 +21,38 @@ import torch
 from PIL import Image
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchpark import DockingConfig, LotConfig, ParkingConfig, ParkingEnv
-from torchpark.docking import goal_frame_error
-from torchpark.recording import record_video
-from torchpark.rendering import frame_grid
-from torchpark.reward import parking_cost
-from trainers.evaluate import load, make_eval_env, make_policy
+from torchpark import (
+    AidsConfig,
+    BrakeConfig,
+    DockingConfig,
+    NearGoalStarts,
+    ParkingConfig,
+    ParkingEnv,
+)
+from torchpark.aids.docking import error_from_goal
+from torchpark.media.recording import record_video
+from torchpark.media.rendering import picture_grid
+from torchpark.sim.reward import parking_cost
+from trainers.evaluate import load
+from trainers.utils import make_eval_env, make_policy
 
 DOCS = Path(__file__).resolve().parent
 
 
 def lots_picture(path: Path) -> None:
-    frames = []
+    pictures = []
     for occupancy in (0.0, 0.5, 0.9):
         env = ParkingEnv(1, seed=7)
         env.occupancy = occupancy
         env.reset()
-        frames.append(env.render(0))
-    Image.fromarray(frame_grid(frames, columns=3)).save(path)
+        pictures.append(env.render(0))
+    Image.fromarray(picture_grid(pictures, columns=3)).save(path)
 
 
 def rollout_animation(checkpoint: str, path: Path, occupancy: float = 0.4) -> None:
     cfg, saved = load(checkpoint)
-    actor = make_policy(cfg, saved)
-    env = make_eval_env(cfg, saved, occupancy, num_envs=1, seed=1)
+    actor = make_policy(cfg, saved["actor"])
+    env = make_eval_env(cfg, saved["obs_norm"], occupancy, num_envs=1, seed=1)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         record_video(env, actor, path, max_steps=300, fps=20)
 
@@ -52,19 +60,20 @@ def rollout_animation(checkpoint: str, path: Path, occupancy: float = 0.4) -> No
 def docking_picture(path: Path, episodes: int = 24, steps: int = 1000,
                     occupancy: float = 0.5) -> None:
     docking = DockingConfig()
-    config = ParkingConfig(
-        lot=LotConfig(near_goal_starts=1.0, near_goal_reach=docking.reach,
-                      near_goal_lateral=docking.lateral, near_goal_heading=docking.heading,
-                      near_goal_candidates=32),
-        docking=docking, emergency_brake=True, steer_clear=5)
-    env = ParkingEnv(episodes, seed=0, config=config)
+    config = ParkingConfig()
+    aids = AidsConfig(
+        near_goal_starts=NearGoalStarts(probability=1.0, reach=docking.reach,
+                                        lateral=docking.lateral, heading=docking.heading,
+                                        candidates=32),
+        docking=docking, brake=BrakeConfig(steer_clear=5))
+    env = ParkingEnv(episodes, seed=0, config=config, aids=aids)
     env.occupancy = occupancy
     td = env.reset()
 
     def row(live: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """remaining m, lateral m, |heading| rad, C, live, (episodes,) each."""
         state = env.state
-        error = goal_frame_error(state.pose, state.goal)
+        error = error_from_goal(state.pose, state.goal)
         dx, dy = (state.goal[:, :2] - state.pose[:, :2]).unbind(-1)
         cost = parking_cost(dx, dy, state.pose[:, 2], state.goal[:, 2], state.speed,
                             config.reward)

@@ -1,4 +1,5 @@
-"""Shared fixtures: the default configuration, its lot layout, and the device under test.
+"""Shared fixtures (the default configuration, its lot layout, the device under test) and
+helpers (placing the car, stepping, random actions, box polygons).
 
 ``python -m pytest --device cuda`` runs the tests that take the ``device`` fixture on that
 device (the rest of the suite runs as usual); the default is the CPU.
@@ -6,11 +7,15 @@ device (the rest of the suite runs as usual); the default is the CPU.
 
 from __future__ import annotations
 
-import pytest
-import torch
+import math
 
-from torchpark import ParkingConfig
-from torchpark.lot import build_layout
+import pytest
+import shapely
+import torch
+from tensordict import TensorDict
+
+from torchpark import ParkingConfig, ParkingEnv
+from torchpark.sim.layout import build_layout
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -38,3 +43,39 @@ def config() -> ParkingConfig:
 @pytest.fixture(scope="session")
 def layout(config):
     return build_layout(config.lot, config.vehicle)
+
+
+# ---------------------------------------------------------------- shared helpers
+# Imported by the test modules (``from tests.conftest import place``).
+
+
+def place(env: ParkingEnv, pose: torch.Tensor, rows: torch.Tensor | slice = slice(None)
+          ) -> TensorDict:
+    """Move the rear axle of ``rows`` to ``pose`` through the env's public ``set_state``
+    (the rest of the state as it is); returns what it observes."""
+    new = env.state.pose.clone()
+    new[rows] = pose
+    return env.set_state(env.state._replace(pose=new))
+
+
+def act(env: ParkingEnv, action) -> TensorDict:
+    """One step of every env with ``action`` broadcast to (N, 2); returns ``["next"]``."""
+    action = torch.as_tensor(action, dtype=torch.float32, device=env.device)
+    return env.step(TensorDict({"action": action.expand(env.num_envs, 2)},
+                               batch_size=env.batch_size, device=env.device))["next"]
+
+
+def random_actions(n: int, steps: int, seed: int) -> torch.Tensor:
+    """(steps, n, 2) actions uniform over the paper's bounds, from their own generator."""
+    gen = torch.Generator().manual_seed(seed)
+    return (torch.rand(steps, n, 2, generator=gen) * 2 - 1) * torch.tensor([5.0, 0.785])
+
+
+def polygon(box) -> shapely.Polygon:
+    """A box [5] = (cx, cy, heading, half_length, half_width) as a shapely polygon, from its
+    own trigonometry in float64 (an oracle independent of torchpark.sim.geometry)."""
+    cx, cy, h, hl, hw = (float(v) for v in box)
+    c, s = math.cos(h), math.sin(h)
+    pts = [(cx + a * hl * c - b * hw * s, cy + a * hl * s + b * hw * c)
+           for a, b in ((1, -1), (1, 1), (-1, 1), (-1, -1))]
+    return shapely.Polygon(pts)

@@ -8,7 +8,7 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
 from torchpark import ParkingEnv
-from torchpark.actions import PowerActionMap
+from torchpark.aids.actions import PowerActionMap
 
 
 def make(exponents=(3.0, 1.0)) -> TransformedEnv:

@@ -3,12 +3,15 @@ says so with its path, and nothing a user has is overwritten without --overwrite
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
 import torch
 
 from trainers.checkpoint import RESUME_KEYS, load_checkpoint
+from trainers.config import upgrade_saved
+from trainers.evaluate import load
 from trainers.evaluate import main as evaluate_main
 from trainers.ppo import main as train_main
 
@@ -76,3 +79,24 @@ def _evaluation_only(tmp_path: Path) -> Path:
     path = tmp_path / "slim.pt"
     torch.save({"config": {}, "frames": 0, "actor": {}, "obs_norm": {}}, path)
     return path
+
+
+COMMITTED = Path(__file__).resolve().parents[1] / "results" / "fast" / "checkpoint_final.pt"
+
+
+def test_a_checkpoint_of_the_earlier_config_layout_loads_with_its_fields_moved():
+    """The committed checkpoint was saved before the config had agent and train sections
+    (its env section held the aids, its loss section entropy_coeff): it loads as the same
+    agent."""
+    saved = load_checkpoint(COMMITTED)["config"]
+    assert "agent" not in saved and saved["env"]["emergency_brake"] is True  # the old layout
+    cfg, _ = load(str(COMMITTED))
+    agent = cfg.agent
+    assert (agent.action_repeat, agent.emergency_brake, agent.steer_clear, agent.docking,
+            agent.observe_brake, agent.goal_features) == (5, True, 5, True, True, True)
+    assert cfg.train.near_goal_starts == 0.5 and cfg.env.num_envs == 1024
+    assert cfg.loss.entropy_coef == saved["loss"]["entropy_coeff"]
+    assert cfg.optim.max_grad_norm == saved["loss"]["max_grad_norm"]
+    assert upgrade_saved(upgrade_saved(saved)) == upgrade_saved(saved)  # idempotent
+    current = dataclasses.asdict(cfg)
+    assert upgrade_saved(current) == current  # a checkpoint of today's layout is kept as is

@@ -10,15 +10,19 @@ import numpy as np
 import pytest
 
 from torchpark import (
+    AidsConfig,
+    BrakeConfig,
     DockingConfig,
     LidarConfig,
     LotConfig,
+    NearGoalStarts,
     ParkingConfig,
     RewardConfig,
     VehicleConfig,
 )
 
-CONFIGS = (VehicleConfig, LotConfig, LidarConfig, RewardConfig, DockingConfig, ParkingConfig)
+CONFIGS = (VehicleConfig, LotConfig, LidarConfig, RewardConfig, ParkingConfig, BrakeConfig,
+           DockingConfig, NearGoalStarts, AidsConfig)
 FIELDS = [(cls, f) for cls in CONFIGS for f in dataclasses.fields(cls)]
 IDS = [f"{cls.__name__}.{f.name}" for cls, f in FIELDS]
 
@@ -58,9 +62,9 @@ def test_numbers_are_normalised():
     (lambda: ParkingConfig(vehicle=VehicleConfig(max_speed=100.0, dt=2.0)),
      r"max_speed \* dt must be < the thinnest obstacle"),
     (lambda: RewardConfig(w_x=0.0, w_y=0.0, w_alpha=0.0, w_v=0.0), r"RewardConfig\.w_x"),
-    (lambda: ParkingConfig(steer_clear=5), r"ParkingConfig\.steer_clear"),
+    (lambda: BrakeConfig(steer_clear=1), r"BrakeConfig\.steer_clear"),
     (lambda: LotConfig(car_width=3.0), "smaller than the slot"),
-], ids=["max-steps-overflow", "tunnelling", "zero-weights", "steer-clear-without-brake",
+], ids=["max-steps-overflow", "tunnelling", "zero-weights", "steer-clear-of-one-angle",
         "car-wider-than-slot"])
 def test_meaningless_combinations_are_refused(make, match):
     with pytest.raises(ValueError, match=match):
@@ -75,4 +79,10 @@ def test_the_defaults_are_the_papers():
         == (0.35, 0.35, 0.20, 0.10)
     assert config.reward.success_threshold == 4e-4 and config.max_steps == 1000
     assert config.lidar.n_rays == 16 and config.lot.num_slots == 38
-    assert not config.emergency_brake and config.docking is None and config.action_repeat == 1
+    # No aid lives in the paper's config: they are a separate AidsConfig, all off by default.
+    names = {f.name for cls in (ParkingConfig, VehicleConfig, LotConfig, LidarConfig,
+                                RewardConfig) for f in dataclasses.fields(cls)}
+    assert not names & {"action_repeat", "emergency_brake", "steer_clear", "docking",
+                        "brake_penalty", "near_goal_starts", "aids"}
+    aids = AidsConfig()
+    assert aids.action_repeat == 1 and aids.brake is aids.docking is aids.near_goal_starts is None

@@ -8,7 +8,12 @@ import torch
 from torchrl.collectors import Collector
 from torchrl.envs import TransformedEnv
 
-from torchpark import OccupancyCurriculum, ParkingConfig, ParkingEnv, SuccessCurriculum
+from torchpark import (
+    AidsConfig,
+    OccupancyCurriculum,
+    ParkingEnv,
+    SuccessCurriculum,
+)
 from torchpark.curriculum import PAPER_LEVELS
 
 
@@ -101,7 +106,7 @@ def test_bad_arguments_raise(kwargs, match):
 
 
 def test_held_actions_count_as_several_frames():
-    env = TransformedEnv(ParkingEnv(6, seed=0, config=ParkingConfig(action_repeat=5)),
+    env = TransformedEnv(ParkingEnv(6, seed=0, aids=AidsConfig(action_repeat=5)),
                          OccupancyCurriculum(frames_per_level=60))
     td = env.reset()
     for step in range(1, 5):

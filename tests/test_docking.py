@@ -13,26 +13,34 @@ from hypothesis import strategies as st
 from tensordict import TensorDict
 from torchrl.envs import TransformedEnv
 
-from torchpark import DockingConfig, LotConfig, ParkingConfig, ParkingEnv, VehicleConfig
-from torchpark.docking import (
-    GoalFrameError,
+from torchpark import (
+    AidsConfig,
+    BrakeConfig,
+    DockingConfig,
+    NearGoalStarts,
+    ParkingConfig,
+    ParkingEnv,
+    VehicleConfig,
+)
+from torchpark.aids.docking import (
+    GoalError,
     docking_action,
     docking_phase,
-    goal_frame_error,
+    error_from_goal,
     in_funnel,
 )
-from trainers.evaluate import run_episodes
+from torchpark.runner import run_episodes
 
-BOX = dict(near_goal_starts=1.0, near_goal_reach=6.0, near_goal_lateral=0.1,
-           near_goal_heading=0.1)
+# Every start within 0.1 m and 0.1 rad of the slot axis, 0-6 m behind the goal.
+BOX = NearGoalStarts(probability=1.0, reach=6.0, lateral=0.1, heading=0.1)
 FUNNEL = DockingConfig(reach=6.0, lateral=0.1, heading=0.1)
 
 
-def test_goal_frame_error_matches_a_rotation_matrix():
+def test_error_from_goal_matches_a_rotation_matrix():
     rng = np.random.default_rng(0)
     pose = rng.uniform([-30, -30, -math.pi], [30, 30, math.pi], size=(2000, 3))
     goal = rng.uniform([-30, -30, -math.pi], [30, 30, math.pi], size=(2000, 3))
-    error = goal_frame_error(torch.tensor(pose), torch.tensor(goal))
+    error = error_from_goal(torch.tensor(pose), torch.tensor(goal))
     for i in range(0, 2000, 7):
         a = goal[i, 2]
         to_goal_frame = np.array([[math.cos(a), math.sin(a)], [-math.sin(a), math.cos(a)]])
@@ -46,7 +54,7 @@ def test_goal_frame_error_matches_a_rotation_matrix():
 @settings(max_examples=200, deadline=None)
 @given(st.floats(-1.0, 8.0), st.floats(-0.3, 0.3), st.floats(-0.3, 0.3))
 def test_funnel_is_the_box_behind_the_goal_edges_included(remaining, lateral, heading):
-    error = GoalFrameError(*(torch.tensor(x, dtype=torch.float64)
+    error = GoalError(*(torch.tensor(x, dtype=torch.float64)
                              for x in (remaining, lateral, heading)))
     expected = 0.0 <= remaining <= 6.0 and abs(lateral) <= 0.1 and abs(heading) <= 0.1
     assert bool(in_funnel(error, FUNNEL)) == expected
@@ -58,14 +66,14 @@ def test_law_steers_towards_the_axis_both_ways_and_respects_the_limits():
     # Settled (within 0.1 m / 0.1 rad). Left of the axis, aligned: it steers right
     # (delta < 0) both ways. Aligned with the axis, turned left: forwards it steers right,
     # reversing left. 3 m out, forwards at max_speed (0.8 x 3 m > 1 m/s), reversing at it.
-    left = GoalFrameError(torch.full((2,), 3.0), torch.full((2,), 0.05), torch.zeros(2))
+    left = GoalError(torch.full((2,), 3.0), torch.full((2,), 0.05), torch.zeros(2))
     v, delta = docking_action(left, reversing, FUNNEL, vehicle)
     assert v.tolist() == [-FUNNEL.max_speed, FUNNEL.max_speed] and (delta < 0).all()
-    turned = GoalFrameError(torch.full((2,), 3.0), torch.zeros(2), torch.full((2,), 0.05))
+    turned = GoalError(torch.full((2,), 3.0), torch.zeros(2), torch.full((2,), 0.05))
     _, delta = docking_action(turned, forwards, FUNNEL, vehicle)
     assert delta[0] < 0 < delta[1]
     # Not settled: the gentler gains, tan(delta) = L (-k e), and max_speed even near the goal.
-    off = GoalFrameError(torch.full((2,), 0.1), torch.full((2,), 0.3), torch.zeros(2))
+    off = GoalError(torch.full((2,), 0.1), torch.full((2,), 0.3), torch.zeros(2))
     v, delta = docking_action(off, forwards, FUNNEL, vehicle)
     expected = [math.atan(-4.0 * FUNNEL.forward_gain * 0.3),
                 math.atan(-4.0 * FUNNEL.reverse_gain * 0.3)]
@@ -73,17 +81,17 @@ def test_law_steers_towards_the_axis_both_ways_and_respects_the_limits():
     assert v.tolist() == [FUNNEL.max_speed, -FUNNEL.max_speed]
     # Far off: steering saturates at the vehicle's limit; settled at the goal it creeps at
     # min_speed.
-    far = GoalFrameError(torch.tensor([0.0]), torch.tensor([5.0]), torch.tensor([1.0]))
+    far = GoalError(torch.tensor([0.0]), torch.tensor([5.0]), torch.tensor([1.0]))
     _, delta = docking_action(far, torch.tensor([False]), FUNNEL, vehicle)
     assert delta.abs().item() == pytest.approx(vehicle.max_steer)
-    there = GoalFrameError(torch.tensor([0.0]), torch.tensor([0.01]), torch.tensor([0.0]))
+    there = GoalError(torch.tensor([0.0]), torch.tensor([0.01]), torch.tensor([0.0]))
     v, _ = docking_action(there, torch.tensor([False]), FUNNEL, vehicle)
     assert v.item() == pytest.approx(FUNNEL.min_speed)
 
 
 def test_phase_turns_back_when_braked_past_the_goal_or_short_and_unsettled():
     def phase(remaining, lateral, docking, reversing, braked):
-        error = GoalFrameError(torch.tensor(remaining), torch.tensor(lateral),
+        error = GoalError(torch.tensor(remaining), torch.tensor(lateral),
                                torch.zeros(len(remaining)))
         return [t.tolist() for t in docking_phase(
             error, torch.tensor(docking), torch.tensor(reversing), torch.tensor(braked),
@@ -106,48 +114,51 @@ def test_phase_turns_back_when_braked_past_the_goal_or_short_and_unsettled():
                  [False, False, True, False]) == [[True] * 4, [True, False, False, False]]
 
 
-def rollout(config: ParkingConfig, actions: torch.Tensor, seed: int = 3):
-    env = ParkingEnv(actions.shape[1], seed=seed, config=config)
+def rollout(config: ParkingConfig, actions: torch.Tensor, aids: AidsConfig | None = None,
+            seed: int = 3):
+    env = ParkingEnv(actions.shape[1], seed=seed, config=config, aids=aids)
     td = env.reset()
     poses, docking = [], []
     for a in actions:
         td = env.step(td.set("action", a))["next"]
         poses.append(env.state.pose.clone())
-        docking.append(env.state.docking.clone())
+        docking.append(env.aid_state.docking_engaged.clone() if aids is not None
+                       else torch.zeros(actions.shape[1], dtype=torch.bool))
     return torch.stack(poses), torch.stack(docking)
 
 
 def test_docking_is_off_by_default_and_changes_nothing_outside_its_funnel():
-    assert ParkingConfig().docking is None
+    assert AidsConfig().docking is None
     actions = torch.rand(30, 32, 2, generator=torch.Generator().manual_seed(1)) * 2 - 1
     plain, plain_docking = rollout(ParkingConfig(occupancy=0.4), actions)
     # A funnel no uniform start reaches in 30 steps: the same rollouts, the flag never set.
     tiny = DockingConfig(reach=1e-3, lateral=1e-3, heading=1e-3)
-    with_layer, docking = rollout(ParkingConfig(occupancy=0.4, docking=tiny), actions)
+    with_layer, docking = rollout(ParkingConfig(occupancy=0.4), actions,
+                                  AidsConfig(docking=tiny))
     assert not plain_docking.any() and not docking.any()
     assert torch.equal(plain, with_layer)
 
 
 def test_in_the_funnel_the_law_drives_whatever_the_policy_says():
-    config = ParkingConfig(lot=LotConfig(**BOX), docking=FUNNEL)
+    aids = AidsConfig(near_goal_starts=BOX, docking=FUNNEL)
     generator = torch.Generator().manual_seed(2)
     noisy = torch.rand(40, 16, 2, generator=generator) * 10 - 5
     zeros = torch.zeros(40, 16, 2)
-    a, docking_a = rollout(config, noisy)
-    b, docking_b = rollout(config, zeros)
+    a, docking_a = rollout(ParkingConfig(), noisy, aids)
+    b, docking_b = rollout(ParkingConfig(), zeros, aids)
     assert docking_a.all() and docking_b.all()  # every start is in the funnel, and it latches
     assert torch.equal(a, b)
 
 
 def test_reset_releases_the_layer():
-    env = ParkingEnv(8, seed=0, config=ParkingConfig(lot=LotConfig(**BOX), docking=FUNNEL))
+    env = ParkingEnv(8, seed=0, aids=AidsConfig(near_goal_starts=BOX, docking=FUNNEL))
     td = env.reset()
     env.step(td.set("action", torch.zeros(8, 2)))
-    assert env.state.docking.all()
+    assert env.aid_state.docking_engaged.all()
     mask = torch.zeros(8, 1, dtype=torch.bool)
     mask[:3] = True
     env.reset(TensorDict({"_reset": mask}, batch_size=[8]))
-    assert env.state.docking.tolist() == [False] * 3 + [True] * 5
+    assert env.aid_state.docking_engaged.tolist() == [False] * 3 + [True] * 5
 
 
 @pytest.mark.parametrize("box, brake, steer_clear, occupancy, floor", [
@@ -165,11 +176,11 @@ def test_law_meets_the_papers_success_test_from_the_funnel(box, brake, steer_cle
     benchmarks/docking_reference.py). It never collides."""
     lateral, heading = box
     # In a dense lot 8 tries (the default) often find no free start in the funnel; 32 do.
-    lot = LotConfig(near_goal_starts=1.0, near_goal_lateral=lateral, near_goal_heading=heading,
-                    near_goal_candidates=32 if occupancy else LotConfig.near_goal_candidates)
-    env = ParkingEnv(64, seed=0, config=ParkingConfig(
-        lot=lot, docking=DockingConfig(lateral=lateral, heading=heading),
-        emergency_brake=brake, steer_clear=steer_clear, occupancy=occupancy))
+    near = NearGoalStarts(probability=1.0, lateral=lateral, heading=heading,
+                          candidates=32 if occupancy else NearGoalStarts.candidates)
+    env = ParkingEnv(64, seed=0, config=ParkingConfig(occupancy=occupancy), aids=AidsConfig(
+        near_goal_starts=near, docking=DockingConfig(lateral=lateral, heading=heading),
+        brake=BrakeConfig(steer_clear=steer_clear) if brake else None))
     run = run_episodes(lambda td: td.set("action", torch.zeros(64, 2)), TransformedEnv(env),
                        1000)
     assert run.success.float().mean() > floor and not run.collision.any()
@@ -185,5 +196,5 @@ def test_bad_docking_config_is_rejected_by_name(field, value):
 
 
 def test_docking_must_be_a_docking_config():
-    with pytest.raises(TypeError, match=r"ParkingConfig\.docking must be a DockingConfig or None"):
-        ParkingConfig(docking=True)
+    with pytest.raises(TypeError, match=r"AidsConfig\.docking must be a DockingConfig or None"):
+        AidsConfig(docking=True)

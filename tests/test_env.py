@@ -1,8 +1,8 @@
-"""ParkingEnv behaviour: specs, resets, reward, termination, input checks, determinism."""
+"""ParkingEnv's plumbing: specs, the reset's mask, seeding, dispatch to the paper's or the
+aided step (compiled or not), setting a state, and input checks."""
 
 from __future__ import annotations
 
-import math
 import subprocess
 import sys
 
@@ -14,53 +14,23 @@ from torchrl.collectors import Collector
 from torchrl.envs import InitTracker, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
+from tests.conftest import act, random_actions
 from torchpark import (
+    AidsConfig,
+    BrakeConfig,
     DockingConfig,
     LidarConfig,
-    LotConfig,
+    NearGoalStarts,
     ParkingConfig,
     ParkingEnv,
     RewardConfig,
 )
-from torchpark.simulation import ParkingState, touches_obstacle
-from torchpark.vehicle import bicycle_step, vehicle_frame
-
-
-def place(env: ParkingEnv, pose: torch.Tensor, rows: torch.Tensor | slice = slice(None)) -> None:
-    """Teleport the rear axle of ``rows`` to ``pose`` (test helper)."""
-    new = env.state.pose.clone()
-    new[rows] = pose
-    env._state = env.state._replace(pose=new)
-
-
-def act(env: ParkingEnv, action) -> TensorDict:
-    action = torch.as_tensor(action, dtype=torch.float32, device=env.device)
-    return env.step(TensorDict({"action": action.expand(env.num_envs, 2)},
-                               batch_size=env.batch_size, device=env.device))["next"]
-
-
-def random_actions(n: int, steps: int, seed: int) -> torch.Tensor:
-    gen = torch.Generator().manual_seed(seed)
-    return (torch.rand(steps, n, 2, generator=gen) * 2 - 1) * torch.tensor([5.0, 0.785])
+from torchpark.sim.step import ParkingState
 
 
 @pytest.mark.parametrize("num_envs", [1, 5])
 def test_check_env_specs(num_envs, device):
     check_env_specs(ParkingEnv(num_envs, seed=0, device=device))
-
-
-def test_observation_layout_at_reset():
-    env = ParkingEnv(4, seed=0)
-    obs = env.reset()["observation"]
-    s = env.state
-    assert obs.shape == (4, 23) and obs.dtype == torch.float32
-    assert torch.allclose(obs[:, 0], s.goal[:, 0] - s.pose[:, 0])
-    assert torch.allclose(obs[:, 1], s.goal[:, 1] - s.pose[:, 1])
-    assert torch.allclose(obs[:, 2], torch.cos(s.pose[:, 2]))
-    assert torch.allclose(obs[:, 3], torch.sin(s.pose[:, 2]))
-    assert (obs[:, 4] == 0).all()
-    assert torch.allclose(obs[:, 5], torch.cos(s.goal[:, 2]))
-    assert ((obs[:, 7:] >= 0) & (obs[:, 7:] <= 1)).all()
 
 
 def test_partial_reset_leaves_other_rows_bit_identical(device):
@@ -78,106 +48,11 @@ def test_partial_reset_leaves_other_rows_bit_identical(device):
     for old, new in zip(before, env.state, strict=True):
         assert torch.equal(old[keep], new[keep])
     assert torch.equal(own["observation"][keep], td["observation"][keep])
-    env._state = ParkingState(*before)
+    env.set_state(ParkingState(*before))
     out = env.reset(td.clone().set("_reset", mask))
     assert torch.equal(out["observation"][keep], td["observation"][keep])
     assert (env.state.steps[~keep] == 0).all() and (env.state.speed[~keep] == 0).all()
     assert not torch.equal(before[0][~keep], env.state.pose[~keep])
-
-
-def test_reward_recomputed_from_observation(device):
-    env = ParkingEnv(32, seed=2, device=device)
-    env.occupancy = 0.6
-    rollout = env.rollout(60, policy=None, break_when_any_done=False).cpu()
-    nxt = rollout["next"]
-    obs, reward = nxt["observation"], nxt["reward"][..., 0]
-    live = ~nxt["terminated"][..., 0]
-    assert live.sum() > 1000
-    psi = torch.atan2(obs[..., 3], obs[..., 2])
-    alpha = torch.atan2(obs[..., 6], obs[..., 5])
-    dalpha = torch.remainder(alpha - psi + math.pi, 2 * math.pi) - math.pi
-    cost = (0.35 * obs[..., 0].abs() + 0.35 * obs[..., 1].abs() + 0.2 * dalpha.abs()
-            + 0.1 * obs[..., 4].abs())
-    expected = 1 - cost ** (1 / 3)
-    assert torch.allclose(reward[live], expected[live], atol=1e-5)
-    collided = nxt["collision"][..., 0]
-    assert collided.any()
-    assert torch.allclose(reward[collided], expected[collided] - 200, atol=1e-4)
-
-
-def test_driving_into_a_wall_collides_and_terminates():
-    env = ParkingEnv(1, seed=0)
-    env.reset()
-    width = env.layout.width
-    # Facing +x, front bumper 0.3 m from the right wall; on the bottom lane, away from slots.
-    place(env, torch.tensor([width - 4.5 - 0.3, 3.0, 0.0]))
-    first = act(env, [2.0, 0.0])  # 0.2 m: still clear
-    assert not first["collision"].item() and not first["done"].item()
-    second = act(env, [2.0, 0.0])  # 0.4 m: through the wall line
-    assert second["collision"].item() and second["terminated"].item() and second["done"].item()
-    assert not second["truncated"].item()
-    obs = second["observation"][0].tolist()
-    cost = 0.35 * abs(obs[0]) + 0.35 * abs(obs[1]) + 0.1 * 2.0 + 0.2 * abs(
-        math.remainder(math.atan2(obs[6], obs[5]) - math.atan2(obs[3], obs[2]), 2 * math.pi))
-    assert second["reward"].item() == pytest.approx(1 - cost ** (1 / 3) - 200, abs=1e-4)
-
-
-def test_standing_in_an_empty_slot_is_no_collision_but_a_parked_car_is():
-    env = ParkingEnv(2, seed=0)
-    env.occupancy = 0.5
-    env.reset()
-    present = env.state.present[:, : env.layout.num_slots]
-    empty = int(torch.nonzero((present[0] == 0) & (torch.arange(present.shape[1]) !=
-                                                   env.state.goal_slot[0]))[0])
-    full = int(torch.nonzero(present[1] == 1)[0])
-    place(env, env.layout.goal_poses[[empty, full]])
-    out = act(env, [0.0, 0.0])
-    assert out["collision"][:, 0].tolist() == [False, True]
-
-
-def test_touching_the_wall_counts():
-    env = ParkingEnv(1, seed=0)
-    env.reset()
-    place(env, torch.tensor([env.layout.width - 4.5 - 0.25, 3.0, 0.0]))
-    assert act(env, [2.5, 0.0])["collision"].item()  # front exactly on the wall's face
-
-
-def test_placing_the_car_on_its_goal_succeeds():
-    env = ParkingEnv(8, seed=3)
-    env.occupancy = 0.9
-    env.reset()
-    place(env, env.state.goal)
-    out = act(env, [0.0, 0.0])
-    assert out["success"].all() and out["terminated"].all() and not out["collision"].any()
-    assert torch.allclose(out["reward"], torch.full((8, 1), 1001.0))
-
-
-def test_driving_onto_the_goal_succeeds_within_threshold():
-    env = ParkingEnv(4, seed=4)
-    env.reset()
-    goal = env.state.goal
-    back = torch.stack((torch.cos(goal[:, 2]), torch.sin(goal[:, 2])), -1) * 1e-4
-    place(env, torch.cat((goal[:, :2] - back, goal[:, 2:]), -1))
-    out = act(env, [1e-3, 0.0])  # 0.1 mm forward at 1 mm/s: C ~ 1e-4 < 4e-4
-    assert out["success"].all()
-    assert (out["reward"] > 1000.9).all()
-
-
-def test_truncation_at_step_limit():
-    env = ParkingEnv(3, seed=5, config=ParkingConfig(max_steps=7))
-    env.reset()
-    for step in range(1, 8):
-        out = act(env, [0.0, 0.0])  # standing still: no collision, no success
-        assert out["truncated"].all() == (step == 7)
-        assert out["done"].all() == (step == 7) and not out["terminated"].any()
-
-
-def test_out_of_range_actions_are_clamped():
-    a, b = ParkingEnv(2, seed=6), ParkingEnv(2, seed=6)
-    a.reset(), b.reset()
-    out_a = act(a, [[50.0, 3.0], [-50.0, -3.0]])
-    out_b = act(b, [[5.0, 0.785], [-5.0, -0.785]])
-    assert torch.equal(out_a["observation"], out_b["observation"])
 
 
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
@@ -220,7 +95,7 @@ def test_bad_occupancy_raises(p):
     (lambda: LidarConfig(n_rays=0), "n_rays"),
     (lambda: LidarConfig(max_range=-1.0), "max_range"),
     (lambda: RewardConfig(success_threshold=0.0), "success_threshold"),
-    (lambda: RewardConfig(brake_penalty=float("nan")), "brake_penalty"),
+    (lambda: BrakeConfig(penalty=float("nan")), "BrakeConfig.penalty"),
     (lambda: ParkingConfig(max_steps=0), "max_steps"),
 ])
 def test_impossible_configs_raise(make, match):
@@ -255,12 +130,6 @@ def test_set_seed_reproduces():
     assert torch.equal(a, env.reset()["observation"])
 
 
-def test_n_rays_option_changes_the_observation():
-    env = ParkingEnv(2, seed=0, config=ParkingConfig(lidar=LidarConfig(n_rays=32)))
-    assert env.reset()["observation"].shape == (2, 39)
-    check_env_specs(ParkingEnv(2, seed=0, config=ParkingConfig(lidar=LidarConfig(n_rays=5))))
-
-
 def test_collector_auto_resets_and_keeps_the_extra_keys(device):
     env = TransformedEnv(ParkingEnv(16, seed=8, config=ParkingConfig(max_steps=20),
                                     device=device), InitTracker())
@@ -273,26 +142,28 @@ def test_collector_auto_resets_and_keeps_the_extra_keys(device):
     assert batch.shape == (16, 25)
     nxt = batch["next"]
     assert nxt["done"].any()  # truncation after 20 steps at the latest
-    for key in ("success", "collision", "braked", "occupancy"):
+    for key in ("success", "collision", "occupancy"):
         assert key in nxt.keys()
     assert (nxt["occupancy"] == 0.8).all()
     # Episodes restart after done: the step counter implied by is_init matches.
     assert batch["is_init"].sum() >= 16
 
 
-@pytest.mark.parametrize("config", [
-    ParkingConfig(),
-    ParkingConfig(lot=LotConfig(near_goal_starts=0.5), docking=DockingConfig(lateral=1.0,
-                                                                              heading=0.6)),
-    ParkingConfig(occupancy=0.9, emergency_brake=True, steer_clear=5,
-                  lot=LotConfig(near_goal_starts=0.5), docking=DockingConfig()),
-], ids=["paper", "docking", "steer-clear"])
-def test_compiled_step_is_one_graph_and_matches_eager(config, device):
+@pytest.mark.parametrize("config, aids", [
+    (ParkingConfig(), None),
+    (ParkingConfig(), AidsConfig(near_goal_starts=NearGoalStarts(),
+                                 docking=DockingConfig(lateral=1.0, heading=0.6))),
+    (ParkingConfig(occupancy=0.9), AidsConfig(
+        action_repeat=3, brake=BrakeConfig(steer_clear=5, penalty=-1.0),
+        near_goal_starts=NearGoalStarts(), docking=DockingConfig())),
+], ids=["paper", "docking", "all-aids"])
+def test_compiled_step_is_one_graph_and_matches_eager(config, aids, device):
     """compile_step=True compiles step and reset with fullgraph=True: any graph break raises."""
     actions = random_actions(64, 40, 9).to(device)
     outs = []
     for compiled in (False, True):
-        env = ParkingEnv(64, seed=10, config=config, compile_step=compiled, device=device)
+        env = ParkingEnv(64, seed=10, config=config, aids=aids, compile_step=compiled,
+                         device=device)
         env.occupancy = 0.6
         td = env.reset()
         seq = []
@@ -301,137 +172,13 @@ def test_compiled_step_is_one_graph_and_matches_eager(config, device):
                                                              device=device))
             seq.append(td_out["next"].select("observation", "reward", "done", "collision"))
         outs.append(torch.stack(seq))
-        assert config.docking is None or env.state.docking.any()  # the layer did drive
+        if aids is not None and aids.docking is not None:  # the law did drive
+            assert env.aid_state.docking_engaged.any()
     eager, compiled = outs
     assert torch.equal(eager["done"], compiled["done"])
     assert torch.equal(eager["collision"], compiled["collision"])
     assert torch.allclose(eager["observation"], compiled["observation"], atol=1e-4)
     assert torch.allclose(eager["reward"], compiled["reward"], atol=1e-3)
-
-
-def test_action_repeat_equals_single_steps_and_stops_at_the_end():
-    k = 4
-    single = ParkingEnv(32, seed=9, config=ParkingConfig(occupancy=0.9))
-    held = ParkingEnv(32, seed=9, config=ParkingConfig(occupancy=0.9, action_repeat=k))
-    a, b = single.reset(), held.reset()
-    assert torch.equal(a["observation"], b["observation"])
-    action = torch.tensor([[3.0, 0.4]]).expand(32, 2)
-    ended = torch.zeros(32, dtype=torch.bool)
-    reward = torch.zeros(32)
-    observation = a["observation"].clone()
-    collided = torch.zeros(32, dtype=torch.bool)
-    for _ in range(k):
-        out = single.step(a.set("action", action))["next"]
-        live = ~ended
-        reward += torch.where(live, out["reward"][:, 0], 0.0)
-        observation[live] = out["observation"][live]
-        collided |= live & out["collision"][:, 0]
-        ended |= out["done"][:, 0]
-        a = out
-    out = held.step(b.set("action", action))["next"]
-    assert collided.any() and not collided.all()  # some rows end inside the held action
-    assert torch.allclose(out["reward"][:, 0], reward, atol=1e-4)
-    assert torch.allclose(out["observation"], observation, atol=1e-5)
-    assert torch.equal(out["collision"][:, 0], collided)
-    assert torch.equal(held.state.steps, torch.where(collided, held.state.steps, k))
-
-
-def test_emergency_brake_never_collides_and_holds_the_pose(device):
-    env = ParkingEnv(64, seed=2, config=ParkingConfig(occupancy=0.9, emergency_brake=True),
-                     device=device)
-    td = env.reset()
-    plain = ParkingEnv(64, seed=2, config=ParkingConfig(occupancy=0.9), device=device)
-    plain.reset()
-    action = torch.tensor([[5.0, 0.3]], device=device).expand(64, 2)
-    for _ in range(100):
-        before = env.state.pose.clone()
-        td = env.step(td.set("action", action))["next"]
-        stopped = env.state.speed == 0
-        assert not td["collision"].any() and not td["done"].any()
-        assert torch.equal(env.state.pose[stopped], before[stopped])
-    assert stopped.all()  # full throttle ends against something everywhere
-    hits = 0
-    td = plain.reset()
-    for _ in range(100):
-        td = plain.step(td.set("action", action))["next"]
-        hits += int(td["collision"].sum())
-    assert hits > 0  # the same drive without the brake collides
-
-
-def test_steer_clear_takes_the_clear_steering_nearest_the_commanded_else_stops():
-    """Random actions in dense lots, every colliding step checked against a search over the
-    five angles: the step is taken at the clear angle nearest the commanded one, at the
-    commanded speed; with none clear the car stops; either way it counts as braked."""
-    env = ParkingEnv(64, seed=2, config=ParkingConfig(occupancy=0.9, emergency_brake=True,
-                                                      steer_clear=5))
-    td = env.reset()
-    generator = torch.Generator().manual_seed(0)
-    spread = torch.linspace(-0.785, 0.785, 5)
-    limits = torch.tensor([5.0, 0.785])
-    vehicle = env.config.vehicle
-    steered = stopped = 0
-    for _ in range(60):
-        action = (torch.rand(64, 2, generator=generator) * 2 - 1) * limits
-        before, brakes = env.state.pose.clone(), env.state.brakes.clone()
-        # Commanded angle first, then the five: (64, 6) would-be collisions.
-        deltas = torch.cat((action[:, 1:], spread.expand(64, 5)), dim=1)
-        poses = bicycle_step(before[:, None].expand(64, 6, 3), action[:, :1].expand(64, 6),
-                             deltas, vehicle)
-        hits = touches_obstacle(vehicle_frame(poses, vehicle), env._world,
-                                env.state.present[:, None])
-        td = env.step(td.set("action", action))["next"]
-        assert not td["collision"].any()
-        assert torch.equal(td["braked"][:, 0], env.state.braked)
-        for row in range(64):
-            if not hits[row, 0]:
-                expected = bicycle_step(before[row], action[row, 0], action[row, 1], vehicle)
-                assert torch.equal(env.state.pose[row], expected)
-                assert env.state.brakes[row] == brakes[row]
-                continue
-            assert env.state.brakes[row] == brakes[row] + 1
-            clear = [d for d, hit in zip(spread, hits[row, 1:], strict=True) if not hit]
-            if clear:
-                nearest = min(clear, key=lambda d: abs(float(d - action[row, 1])))
-                expected = bicycle_step(before[row], action[row, 0], nearest, vehicle)
-                assert torch.allclose(env.state.pose[row], expected, atol=1e-6)
-                assert env.state.speed[row] == action[row, 0] and not env.state.braked[row]
-                steered += 1
-            else:
-                assert torch.equal(env.state.pose[row], before[row])
-                assert env.state.speed[row] == 0 and env.state.braked[row]
-                stopped += 1
-    assert steered > 20 and stopped > 5
-
-
-@pytest.mark.parametrize("value, brake", [(1, True), (-1, True), (True, True), (5, False)])
-def test_bad_steer_clear_raises(value, brake):
-    with pytest.raises(TypeError if isinstance(value, bool) else ValueError,
-                       match=r"ParkingConfig\.steer_clear"):
-        ParkingConfig(emergency_brake=brake, steer_clear=value)
-
-
-def test_brake_penalty_is_added_on_braked_steps_only():
-    def drive(penalty: float) -> tuple[list[torch.Tensor], list[torch.Tensor], torch.Tensor]:
-        config = ParkingConfig(occupancy=0.9, emergency_brake=True,
-                               reward=RewardConfig(brake_penalty=penalty))
-        env = ParkingEnv(64, seed=2, config=config)
-        td = env.reset()
-        rewards, braked = [], []
-        action = torch.tensor([[5.0, 0.3]]).expand(64, 2)
-        for _ in range(60):
-            td = env.step(td.set("action", action))["next"]
-            rewards.append(td["reward"][:, 0])
-            braked.append(env.state.speed == 0)  # full throttle: speed 0 only when braked
-            assert torch.equal(env.state.braked, braked[-1])
-        return rewards, braked, env.state.brakes
-
-    plain, braked, brakes = drive(0.0)
-    penalised, same, _ = drive(-3.0)
-    assert torch.equal(brakes, torch.stack(braked).sum(0))  # the episode's count
-    assert all(torch.equal(a, b) for a, b in zip(braked, same, strict=True))
-    for r0, r1, b in zip(plain, penalised, braked, strict=True):
-        assert torch.allclose(r1, r0 + torch.where(b, -3.0, 0.0))
-    assert any(b.any() for b in braked) and not all(b.all() for b in braked)
 
 
 def test_randomize_step_counts_spreads_the_first_timeouts():
@@ -559,3 +306,45 @@ def test_an_action_on_another_device_is_refused_by_name():
     action = torch.zeros(2, 2, device="meta")
     with pytest.raises(ValueError, match="action must be on the env's device cpu, got meta"):
         env._step(TensorDict({"action": action}, batch_size=[2]))
+
+
+def test_aided_env_declares_its_aids_outputs_and_passes_the_spec_check(device):
+    aids = AidsConfig(action_repeat=2, brake=BrakeConfig(steer_clear=3),
+                      docking=DockingConfig(), near_goal_starts=NearGoalStarts())
+    env = ParkingEnv(6, seed=0, aids=aids, device=device)
+    check_env_specs(env)
+    keys = set(env.observation_spec.keys())
+    assert {"braked", "interventions", "docking_engaged"} <= keys
+    assert not {"braked", "interventions", "docking_engaged"} & set(
+        ParkingEnv(2, seed=0).observation_spec.keys())  # the paper's env has none of them
+    only_brake = ParkingEnv(2, seed=0, aids=AidsConfig(brake=BrakeConfig()))
+    assert "docking_engaged" not in only_brake.observation_spec.keys()
+
+
+def test_set_state_places_rows_and_observes_them():
+    env = ParkingEnv(4, seed=0)
+    env.reset()
+    state = env.state
+    moved = state._replace(pose=state.goal.clone(), steps=torch.full_like(state.steps, 3))
+    rows = torch.tensor([True, False, True, False])
+    td = env.set_state(moved, rows)
+    assert torch.equal(env.state.pose[rows], state.goal[rows])
+    assert torch.equal(env.state.pose[~rows], state.pose[~rows])
+    assert td["observation"][rows, :2].abs().max() == 0  # on the goal: dx = dy = 0
+    assert env.state.steps.tolist() == [3, 0, 3, 0]
+    with pytest.raises(ValueError, match=r"state.pose must be a torch.float32 tensor of shape"):
+        env.set_state(state._replace(pose=torch.zeros(4, 2)))
+    with pytest.raises(TypeError, match="state must be a ParkingState"):
+        env.set_state(tuple(state))
+
+
+def test_the_success_threshold_is_set_from_a_number_or_a_tensor():
+    env = ParkingEnv(2, seed=0)
+    env.set_success_threshold(torch.tensor(0.05))
+    assert env.success_threshold == pytest.approx(0.05)
+    env.set_success_threshold(1e-3)
+    assert env.world.success_threshold.item() == pytest.approx(1e-3)
+    with pytest.raises(ValueError, match="0-d float tensor"):
+        env.set_success_threshold(torch.tensor([0.1, 0.2]))
+    with pytest.raises(TypeError, match="aids must be an AidsConfig"):
+        ParkingEnv(2, aids={"action_repeat": 2})

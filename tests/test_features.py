@@ -10,7 +10,7 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
 from torchpark import GoalFrameFeatures, ParkingEnv
-from torchpark.features import goal_in_vehicle_frame
+from torchpark.aids.features import goal_in_vehicle_frame
 
 
 def observation(dx, dy, psi, alpha) -> torch.Tensor:

@@ -11,17 +11,10 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from torchpark.geometry import box_corners, boxes_overlap, ray_box_distance, wrap_angle
+from tests.conftest import polygon
+from torchpark.sim.geometry import box_corners, boxes_overlap, ray_box_distance, wrap_angle
 
 GAP = 1e-4  # 0.1 mm
-
-
-def polygon(box: np.ndarray) -> shapely.Polygon:
-    cx, cy, h, hl, hw = (float(v) for v in box)
-    c, s = math.cos(h), math.sin(h)
-    pts = [(cx + a * hl * c - b * hw * s, cy + a * hl * s + b * hw * c)
-           for a, b in ((1, -1), (1, 1), (-1, 1), (-1, -1))]
-    return shapely.Polygon(pts)
 
 
 def random_boxes(rng: np.random.Generator, n: int) -> np.ndarray:

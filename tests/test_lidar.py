@@ -7,8 +7,8 @@ import math
 import pytest
 import torch
 
-from torchpark.geometry import BoxFrame, box_frame, ray_box_distance
-from torchpark.lidar import lidar_scan, line_rotation
+from torchpark.sim.geometry import OrientedBoxes, oriented_boxes, ray_box_distance
+from torchpark.sim.lidar import lidar_scan, line_rotation
 
 
 @pytest.mark.parametrize("n_rays", [16, 7, 2, 1])
@@ -16,7 +16,7 @@ def test_scan_matches_per_ray_loop(n_rays, layout):
     gen = torch.Generator().manual_seed(0)
     n = 64
     boxes = layout.obstacles
-    frame = BoxFrame(*(t.contiguous() for t in box_frame(boxes)))
+    frame = OrientedBoxes(*(t.contiguous() for t in oriented_boxes(boxes)))
     valid = torch.rand(n, boxes.shape[0], generator=gen) < 0.6
     x = torch.rand(n, generator=gen) * layout.width
     y = torch.rand(n, generator=gen) * layout.height
@@ -33,7 +33,7 @@ def test_scan_matches_per_ray_loop(n_rays, layout):
 
 
 def test_scan_sees_max_range_in_the_open_and_zero_inside_a_box():
-    frame = box_frame(torch.tensor([[0.0, 0.0, 0.3, 1.0, 1.0]]))
+    frame = oriented_boxes(torch.tensor([[0.0, 0.0, 0.3, 1.0, 1.0]]))
     valid = torch.tensor([[True], [True], [False]])
     x, y = torch.tensor([0.2, 100.0, 0.2]), torch.zeros(3)
     out = lidar_scan(x, y, torch.ones(3), torch.zeros(3), line_rotation(16), frame, valid.float(),

@@ -9,15 +9,17 @@ import imageio.v3 as iio
 import pytest
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
-from torchrl.envs import TransformedEnv
 
-from torchpark import DockingConfig, LotConfig, ParkingConfig, ParkingEnv, RewardConfig
-from torchpark.docking import goal_frame_error, in_funnel
-from torchpark.features import GOAL_FEATURES
-from trainers.config import load_config
-from trainers.evaluate import COLUMNS, Episodes, evaluate, run_episodes
+from torchpark import (
+    DockingConfig,
+    ParkingConfig,
+)
+from torchpark.aids.features import GOAL_FEATURES
+from trainers.config import env_configs, load_config
+from trainers.evaluate import COLUMNS, evaluate
 from trainers.evaluate import main as evaluate_main
-from trainers.ppo import main, make_env, parking_config, train
+from trainers.ppo import main, train
+from trainers.utils import make_env
 
 TAGS = {
     "episode/reward", "episode/length", "episode/success_rate", "episode/collision_rate",
@@ -132,81 +134,18 @@ def test_evaluation_table_has_the_stated_columns(smoke_run, tmp_path):
     assert iio.improps(tmp_path / "rollout_occ90.mp4").shape[1:] == (384, 480, 3)
 
 
-def test_failure_modes_follow_their_definitions():
-    """grazing: a collision at |v| <= 1 m/s; freezing: a timeout that moved < 1 m in its last
-    100 steps."""
-    steps = 300
-    poses = torch.zeros(steps + 1, 4, 3)
-    poses[:, 2, 0] = torch.linspace(0.0, 30.0, steps + 1)  # drives on until its timeout
-    poses[:200, 3, 0] = torch.linspace(0.0, 20.0, 200)  # stops after step 199, then waits
-    poses[200:, 3, 0] = 20.0
-    final = torch.zeros(4, 7)
-    final[:, 4] = torch.tensor([0.5, 3.0, 1.0, 0.0])  # speed at the end
-    run = Episodes(success=torch.zeros(4, dtype=torch.bool),
-                   collision=torch.tensor([True, True, False, False]),
-                   timeout=torch.tensor([False, False, True, True]),
-                   length=torch.tensor([50.0, 60.0, 300.0, 300.0]), final=final, poses=poses,
-                   goal_slot=torch.zeros(4, dtype=torch.long),
-                   steps=torch.tensor([50.0, 60.0, 300.0, 300.0]),
-                   braked=torch.zeros(4, dtype=torch.bool),
-                   docked=torch.zeros(4, dtype=torch.bool))
-    assert run.grazing.tolist() == [True, False, False, False]
-    assert run.freezing.tolist() == [False, False, False, True]
-    # With actions held for 5 steps of dt, poses are 5 steps apart: 100 steps = 20 poses.
-    held = dataclasses.replace(run, poses=poses[::5].clone(), length=run.length / 5, repeat=5)
-    held.poses[41:, 3, 0] = 20.0  # stops after env step 40 (200 steps of dt), then waits
-    assert held.freezing.tolist() == [False, False, False, True]
-
-
-def test_braked_episodes_are_the_ones_that_collide_without_the_brake():
-    """Same lots, same constant action: up to its first braked step an episode with the brake
-    drives exactly as without it, so the braked ones are those that collide without it."""
-    def run(brake: bool) -> Episodes:
-        config = ParkingConfig(occupancy=0.9, emergency_brake=brake, max_steps=100)
-        env = TransformedEnv(ParkingEnv(64, seed=4, config=config))
-        return run_episodes(lambda td: td.set("action", torch.tensor([[5.0, 0.3]]).expand(64, 2)),
-                            env, 100)
-
-    plain, braked = run(False), run(True)
-    assert 0 < int(plain.collision.sum()) < 64 and not plain.braked.any()
-    assert torch.equal(braked.braked, plain.collision) and not braked.collision.any()
-
-
-def test_docked_counts_the_episodes_the_docking_layer_drove():
-    """Near-goal starts for half the lots, a funnel as wide as their box: the episodes that
-    start in it are docked, the uniform starts are not (zero actions: they stay put)."""
-    lot = LotConfig(near_goal_starts=0.5, near_goal_lateral=0.1, near_goal_heading=0.1)
-    funnel = DockingConfig(lateral=0.1, heading=0.1)
-
-    def run(layer: DockingConfig | None) -> tuple[Episodes, torch.Tensor]:
-        base = ParkingEnv(32, seed=6, config=ParkingConfig(lot=lot, docking=layer, max_steps=50))
-        starts = []
-
-        def policy(td):
-            if not starts:  # the first call sees the start poses
-                starts.append(in_funnel(goal_frame_error(base.state.pose, base.state.goal),
-                                        funnel))
-            return td.set("action", torch.zeros(32, 2))
-
-        return run_episodes(policy, TransformedEnv(base), 50), starts[0]
-
-    plain, _ = run(None)
-    docked, started_in_funnel = run(funnel)
-    assert not plain.docked.any()
-    assert torch.equal(docked.docked, started_in_funnel) and 0 < int(started_in_funnel.sum()) < 32
-
-
 def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     """Every training option off the paper's path at once: held actions, the cubic speed map,
     near-goal starts, the emergency brake, a state-dependent std, the success curriculum,
     the docking layer, the brake steering clear and the policy seeing it."""
     cfg = load_config("smoke", [
-        f"logger.log_dir={tmp_path}", "env.action_repeat=2", "env.action_exponents=[3.0,1.0]",
-        "env.near_goal_starts=0.5", "env.emergency_brake=true", "env.goal_features=true",
+        f"logger.log_dir={tmp_path}", "agent.action_repeat=2",
+        "agent.action_exponents=[3.0,1.0]", "train.near_goal_starts=0.5",
+        "agent.emergency_brake=true", "agent.goal_features=true",
         "model.state_dependent_std=true", "collector.frames_per_batch=2048",
-        "collector.total_frames=4096", "curriculum.success_start=1000.0", "env.brake_penalty=-1.0",
-        "curriculum.success_window=1024", "env.docking=true", "env.docking_lateral=1.0",
-        "env.steer_clear=5", "env.observe_brake=true",
+        "collector.total_frames=4096", "curriculum.success_start=1000.0",
+        "train.brake_penalty=-1.0", "curriculum.success_window=1024", "agent.docking=true",
+        "agent.docking_lateral=1.0", "agent.steer_clear=5", "agent.observe_brake=true",
     ])
     final = train(cfg)
     ckpt = torch.load(final, weights_only=True)
@@ -225,22 +164,26 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
 
 
 def test_training_aids_stay_out_of_the_evaluation_env():
-    cfg = load_config("smoke", ["env.success_threshold=0.1", "env.brake_penalty=-1.0",
-                                "env.near_goal_starts=0.5", "env.emergency_brake=true",
-                                "env.action_repeat=2", "env.docking=true",
-                                "env.docking_lateral=0.3", "env.steer_clear=5"])
-    training, evaluation = parking_config(cfg, True), parking_config(cfg, False)
-    assert (training.reward.success_threshold, training.reward.brake_penalty,
-            training.lot.near_goal_starts) == (0.1, -1.0, 0.5)
-    assert evaluation.reward == RewardConfig() and evaluation.lot == LotConfig()
-    for config in (training, evaluation):  # what the agent is stays
-        assert config.emergency_brake and config.action_repeat == 2 and config.steer_clear == 5
-        assert config.docking == DockingConfig(lateral=0.3)
+    cfg = load_config("smoke", ["train.success_threshold=0.1", "train.brake_penalty=-1.0",
+                                "train.near_goal_starts=0.5", "agent.emergency_brake=true",
+                                "agent.action_repeat=2", "agent.docking=true",
+                                "agent.docking_lateral=0.3", "agent.steer_clear=5"])
+    (training, train_aids), (evaluation, eval_aids) = env_configs(cfg, True), env_configs(cfg,
+                                                                                          False)
+    assert (training.reward.success_threshold, train_aids.brake.penalty,
+            train_aids.near_goal_starts.probability) == (0.1, -1.0, 0.5)
+    assert evaluation == ParkingConfig(max_steps=cfg.env.max_steps)  # the paper's task
+    assert eval_aids.near_goal_starts is None and eval_aids.brake.penalty == 0.0
+    for aids in (train_aids, eval_aids):  # what the agent is stays
+        assert aids.action_repeat == 2 and aids.brake.steer_clear == 5
+        assert aids.docking == DockingConfig(lateral=0.3)
+    paper = load_config("paper")
+    assert env_configs(paper, True) == env_configs(paper, False) == (ParkingConfig(), None)
 
 
 def test_observe_brake_appends_the_brake_flag_to_the_policy_input():
-    cfg = load_config("smoke", ["env.emergency_brake=true", "env.goal_features=true",
-                                "env.observe_brake=true", "env.num_envs=64"])
+    cfg = load_config("smoke", ["agent.emergency_brake=true", "agent.goal_features=true",
+                                "agent.observe_brake=true", "env.num_envs=64"])
     env = make_env(cfg)
     env.base_env.occupancy = 0.9
     td = env.reset()
@@ -251,25 +194,27 @@ def test_observe_brake_appends_the_brake_flag_to_the_policy_input():
         td = env.step(td.set("action", torch.tensor([[5.0, 0.3]]).expand(64, 2)))["next"]
         flag = td["observation_policy"][:, -1]
         assert torch.equal(flag, td["braked"][:, 0].float())
-        assert torch.equal(td["braked"][:, 0], env.base_env.state.braked)
+        assert torch.equal(td["braked"][:, 0], env.base_env.aid_state.braked)
         seen |= td["braked"][:, 0]
     assert seen.any()
 
 
 def test_action_repeat_must_divide_the_batch():
-    with pytest.raises(ValueError, match=r"multiple of env.num_envs x env.action_repeat = 48"):
-        load_config("smoke", ["env.action_repeat=3"])
+    with pytest.raises(ValueError, match=r"multiple of env.num_envs x agent.action_repeat = 48"):
+        load_config("smoke", ["agent.action_repeat=3"])
 
 
 @pytest.mark.parametrize("override, name", [
-    ("loss.max_grad_norm=-1", "loss.max_grad_norm"), ("loss.ppo_epochs=0", "loss.ppo_epochs"),
+    ("optim.max_grad_norm=-1", "optim.max_grad_norm"), ("loss.ppo_epochs=0", "loss.ppo_epochs"),
     ("logger.checkpoint_every=0", "logger.checkpoint_every"), ("loss.gamma=1.5", "loss.gamma"),
     ("loss.gamma=0", "loss.gamma"), ("optim.lr=nan", "optim.lr"),
     ("model.hidden=[]", "model.hidden"), ("curriculum.levels=[0.5,2.0]", "curriculum.levels"),
     ("collector.total_frames=512", "collector.total_frames"),
     ("env.max_steps=0", "ParkingConfig.max_steps"), ("logger.exp_name=a/b", "logger.exp_name"),
     ("env.num_envs=true", "num_envs"), ("env.max_steps=1.5", "max_steps"),
-    ("env.emergency_brake=maybe", "emergency_brake"),
+    ("agent.emergency_brake=maybe", "emergency_brake"),
+    ("agent.observe_brake=true", "agent.observe_brake"),
+    ("agent.steer_clear=5", "agent.steer_clear"),
     *([] if torch.cuda.is_available() else [("env.device=cuda", "env.device")]),
 ])
 def test_a_bad_training_field_is_one_line_naming_it(override, name, capsys):

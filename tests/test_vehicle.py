@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from torchpark import VehicleConfig
-from torchpark.geometry import box_corners
-from torchpark.vehicle import bicycle_step, clamp_action, vehicle_boxes
+from torchpark.sim.geometry import box_corners
+from torchpark.sim.vehicle import bicycle_step, clamp_action, vehicle_boxes
 
 CFG = VehicleConfig()
 

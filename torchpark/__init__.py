@@ -1,27 +1,30 @@
-"""torchpark: batched autonomous-parking simulation for reinforcement learning in TorchRL."""
+"""torchpark: batched autonomous-parking simulation for reinforcement learning in TorchRL.
 
-from torchpark.actions import PowerActionMap
-from torchpark.config import (
-    DockingConfig,
-    LidarConfig,
-    LotConfig,
-    ParkingConfig,
-    RewardConfig,
-    VehicleConfig,
-)
-from torchpark.curriculum import OccupancyCurriculum, SuccessCurriculum
+``ParkingEnv(num_envs)`` is the paper's task; ``torchpark.sim`` its simulator as pure tensor
+functions; ``torchpark.aids`` the agent-side aids (``ParkingEnv(..., aids=AidsConfig(...))``);
+``torchpark.media`` pictures and videos.
+"""
+
+from torchpark.aids.actions import PowerActionMap
+from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts
+from torchpark.aids.features import GoalFrameFeatures
+from torchpark.aids.success_curriculum import SuccessCurriculum
+from torchpark.config import LidarConfig, LotConfig, ParkingConfig, RewardConfig, VehicleConfig
+from torchpark.curriculum import OccupancyCurriculum
 from torchpark.env import ParkingEnv
-from torchpark.features import GoalFrameFeatures
 from torchpark.gym_env import ENV_ID, ParkingGymEnv, ParkingVectorEnv, register
 
 register()  # gymnasium.make("torchpark/Parking-v0")
 
 __all__ = [
     "ENV_ID",
+    "AidsConfig",
+    "BrakeConfig",
     "DockingConfig",
     "GoalFrameFeatures",
     "LidarConfig",
     "LotConfig",
+    "NearGoalStarts",
     "OccupancyCurriculum",
     "ParkingConfig",
     "ParkingEnv",

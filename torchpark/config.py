@@ -1,4 +1,6 @@
-"""Typed, frozen configuration with the paper's values (and docs/spec.md's choices) as defaults.
+"""The paper's task as typed, frozen configuration: its values (and docs/spec.md's choices) as
+defaults, so ``ParkingConfig()`` is the paper. The agent-side aids are configured apart, in
+:mod:`torchpark.aids.config`.
 
 Units: metres, seconds, radians. Every value is checked when the dataclass is built, so an
 impossible configuration fails at construction with the field's name and its allowed range.
@@ -33,7 +35,7 @@ def check_flag(value: object, name: str) -> bool:
     return bool(value)
 
 
-def _check_types(config: object) -> None:
+def check_types(config: object) -> None:
     """Every field of a config dataclass against its annotation, by name: bool fields take
     bools, int fields ints (not bools), float fields real numbers (not bools; ints and numpy
     numbers are stored as float), nested configs their class, ``X | None`` also None. Raises
@@ -62,13 +64,13 @@ def _check_types(config: object) -> None:
         object.__setattr__(config, f.name, value)
 
 
-def _require(ok: bool, name: str, allowed: str, value: object) -> None:
+def require(ok: bool, name: str, allowed: str, value: object) -> None:
     if not ok:
         raise ValueError(f"{name} must be {allowed}, got {value!r}")
 
 
-def _positive(name: str, value: float) -> None:
-    _require(math.isfinite(value) and value > 0, name, "a finite number > 0", value)
+def positive(name: str, value: float) -> None:
+    require(math.isfinite(value) and value > 0, name, "a finite number > 0", value)
 
 
 @dataclass(frozen=True)
@@ -84,14 +86,14 @@ class VehicleConfig:
     max_steer: float = 0.785  # |delta| limit, rad
 
     def __post_init__(self) -> None:
-        _check_types(self)
+        check_types(self)
         for name in ("wheelbase", "width", "length", "dt", "max_speed", "max_steer"):
-            _positive(f"VehicleConfig.{name}", getattr(self, name))
-        _require(
+            positive(f"VehicleConfig.{name}", getattr(self, name))
+        require(
             0.0 <= self.rear_overhang < self.length,
             "VehicleConfig.rear_overhang", f"in [0, length={self.length})", self.rear_overhang,
         )
-        _require(self.max_steer < math.pi / 2, "VehicleConfig.max_steer", "< pi/2", self.max_steer)
+        require(self.max_steer < math.pi / 2, "VehicleConfig.max_steer", "< pi/2", self.max_steer)
 
     @property
     def centre_offset(self) -> float:
@@ -117,50 +119,30 @@ class LotConfig:
     start_candidates: int = 16  # uniform start poses tried per env per reset
     start_pool_size: int = 4096  # valid poses drawn once, used when all candidates fail
     pool_seed: int = 0
-    # A training aid, off by default (the paper's starts are uniform over the lot): the
-    # probability that a reset's start is drawn near the goal instead, the rear axle up to
-    # near_goal_reach m back along the slot axis from the goal pose, up to near_goal_lateral m
-    # to either side and near_goal_heading rad off the slot heading; near_goal_candidates
-    # such poses are tried (the first that touches no parked car or wall is taken), and the
-    # uniform start is kept when none fits.
-    near_goal_starts: float = 0.0
-    near_goal_reach: float = 6.0
-    near_goal_lateral: float = 1.0
-    near_goal_heading: float = 0.6
-    near_goal_candidates: int = 8
-
     def __post_init__(self) -> None:
-        _check_types(self)
+        check_types(self)
         for name in ("slot_width", "slot_length", "lane_width", "car_width", "car_length",
                      "wall_thickness"):
-            _positive(f"LotConfig.{name}", getattr(self, name))
-        _require(math.isfinite(self.margin) and self.margin >= 0, "LotConfig.margin",
+            positive(f"LotConfig.{name}", getattr(self, name))
+        require(math.isfinite(self.margin) and self.margin >= 0, "LotConfig.margin",
                  "a finite number >= 0", self.margin)
         for name in ("upper_slots", "left_slots", "middle_slots", "right_slots"):
             n = getattr(self, name)
-            _require(1 <= n <= 100, f"LotConfig.{name}", "an int in [1, 100]", n)
-        _require(self.middle_slots % 2 == 0, "LotConfig.middle_slots", "even", self.middle_slots)
-        _require(
+            require(1 <= n <= 100, f"LotConfig.{name}", "an int in [1, 100]", n)
+        require(self.middle_slots % 2 == 0, "LotConfig.middle_slots", "even", self.middle_slots)
+        require(
             self.car_width < self.slot_width and self.car_length < self.slot_length,
             "LotConfig.car_width/car_length", "smaller than the slot",
             (self.car_width, self.car_length),
         )
         # Upper bounds on the sizes that set tensor shapes: a typo must not allocate the
         # machine's memory (each is far above what the task uses).
-        _require(0 <= self.start_candidates <= 1024, "LotConfig.start_candidates",
+        require(0 <= self.start_candidates <= 1024, "LotConfig.start_candidates",
                  "an int in [0, 1024]", self.start_candidates)
-        _require(1 <= self.start_pool_size <= 2**20, "LotConfig.start_pool_size",
+        require(1 <= self.start_pool_size <= 2**20, "LotConfig.start_pool_size",
                  "an int in [1, 2**20]", self.start_pool_size)
-        _require(0 <= self.pool_seed < 2**63, "LotConfig.pool_seed", "an int in [0, 2**63)",
+        require(0 <= self.pool_seed < 2**63, "LotConfig.pool_seed", "an int in [0, 2**63)",
                  self.pool_seed)
-        _require(0.0 <= self.near_goal_starts <= 1.0, "LotConfig.near_goal_starts", "in [0, 1]",
-                 self.near_goal_starts)
-        for name in ("near_goal_reach", "near_goal_lateral", "near_goal_heading"):
-            value = getattr(self, name)
-            _require(math.isfinite(value) and value >= 0, f"LotConfig.{name}", "finite, >= 0",
-                     value)
-        _require(1 <= self.near_goal_candidates <= 1024, "LotConfig.near_goal_candidates",
-                 "an int in [1, 1024]", self.near_goal_candidates)
 
     @property
     def num_slots(self) -> int:
@@ -175,10 +157,10 @@ class LidarConfig:
     max_range: float = 20.0  # the paper gives none
 
     def __post_init__(self) -> None:
-        _check_types(self)
-        _require(1 <= self.n_rays <= 1024, "LidarConfig.n_rays", "an int in [1, 1024]",
+        check_types(self)
+        require(1 <= self.n_rays <= 1024, "LidarConfig.n_rays", "an int in [1, 1024]",
                  self.n_rays)
-        _positive("LidarConfig.max_range", self.max_range)
+        positive("LidarConfig.max_range", self.max_range)
 
 
 @dataclass(frozen=True)
@@ -192,65 +174,19 @@ class RewardConfig:
     collision_penalty: float = -200.0
     success_bonus: float = 1000.0
     success_threshold: float = 4e-4
-    # Not in the paper: added on a step that ParkingConfig.emergency_brake stops (a training
-    # signal against leaning on the brake; 0 by default).
-    brake_penalty: float = 0.0
 
     def __post_init__(self) -> None:
-        _check_types(self)
+        check_types(self)
         # Position and heading weights > 0: with any of them 0, C < threshold holds away from
         # the goal (all 0: every start is a success).
         for name in ("w_x", "w_y", "w_alpha"):
-            _positive(f"RewardConfig.{name}", getattr(self, name))
-        _require(math.isfinite(self.w_v) and self.w_v >= 0, "RewardConfig.w_v",
+            positive(f"RewardConfig.{name}", getattr(self, name))
+        require(math.isfinite(self.w_v) and self.w_v >= 0, "RewardConfig.w_v",
                  "a finite number >= 0", self.w_v)
-        for name in ("collision_penalty", "success_bonus", "brake_penalty"):
+        for name in ("collision_penalty", "success_bonus"):
             value = getattr(self, name)
-            _require(math.isfinite(value), f"RewardConfig.{name}", "finite", value)
-        _positive("RewardConfig.success_threshold", self.success_threshold)
-
-
-@dataclass(frozen=True)
-class DockingConfig:
-    """A docking layer under the policy (torchpark.docking): once the rear axle is in the
-    funnel around its slot's approach (0 to ``reach`` m back along the slot axis from the
-    goal, within ``lateral`` m of it, heading within ``heading`` rad of the goal's), a fixed
-    feedback law drives for the rest of the episode: tan(delta) = L (-k e -+ 2 sqrt(k) th) for
-    lateral offset e and heading error th (- forwards, + reversing; critically damped over
-    1 / sqrt(k) m travelled either way), k = ``gain`` once settled (within
-    ``settled_lateral`` m and ``settled_heading`` rad), else ``forward_gain`` /
-    ``reverse_gain``. Settled, it drives in at v = clamp(speed_gain s, min_speed, max_speed),
-    s m from the goal; otherwise at max_speed. It reverses when the emergency brake stops it,
-    when past the goal, or when less than ``abort`` m from the goal without being settled,
-    and drives forwards again when braked or ``run_in`` m back.
-    """
-
-    reach: float = 8.0  # m
-    lateral: float = 4.0  # m
-    heading: float = math.pi  # rad: any heading
-    gain: float = 16.0  # 1/m^2
-    forward_gain: float = 0.25  # 1/m^2
-    reverse_gain: float = 0.125  # 1/m^2
-    settled_lateral: float = 0.1  # m
-    settled_heading: float = 0.1  # rad
-    speed_gain: float = 0.8  # 1/s
-    min_speed: float = 1e-3  # m/s: the success test needs |v| well under 4 mm/s
-    max_speed: float = 1.0  # m/s
-    abort: float = 0.5  # m
-    # m: reversing, in practice until the brake stops it; settled, the law brings the errors
-    # to ~1e-5 within ~4 m of path
-    run_in: float = 10.0
-
-    def __post_init__(self) -> None:
-        _check_types(self)
-        for name in ("reach", "lateral", "heading", "gain", "forward_gain", "reverse_gain",
-                     "settled_lateral", "settled_heading", "speed_gain", "min_speed",
-                     "max_speed", "run_in"):
-            _positive(f"DockingConfig.{name}", getattr(self, name))
-        _require(math.isfinite(self.abort) and 0.0 <= self.abort <= self.run_in,
-                 "DockingConfig.abort", f"in [0, run_in = {self.run_in}]", self.abort)
-        _require(self.min_speed <= self.max_speed, "DockingConfig.min_speed",
-                 f"<= max_speed = {self.max_speed}", self.min_speed)
+            require(math.isfinite(value), f"RewardConfig.{name}", "finite", value)
+        positive("RewardConfig.success_threshold", self.success_threshold)
 
 
 _MAX_STEPS_LIMIT = 10**9  # far beyond any episode; the step counter is int64
@@ -258,7 +194,9 @@ _MAX_STEPS_LIMIT = 10**9  # far beyond any episode; the step counter is int64
 
 @dataclass(frozen=True)
 class ParkingConfig:
-    """Everything the environment is built from."""
+    """The paper's parking task, and nothing else: the simulator (``torchpark.sim``) is built
+    from this alone. The agent-side aids are a separate :class:`~torchpark.aids.config.AidsConfig`
+    given to :class:`~torchpark.ParkingEnv` beside it."""
 
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     lot: LotConfig = field(default_factory=LotConfig)
@@ -266,43 +204,22 @@ class ParkingConfig:
     reward: RewardConfig = field(default_factory=RewardConfig)
     max_steps: int = 1000  # truncation, in steps of vehicle.dt
     occupancy: float = 0.0  # initial obstacle occupancy in [0, 1]
-    # Steps of vehicle.dt that one action is held for (1: the paper, a new action every
-    # 0.1 s). With k > 1 one env step advances up to k physics steps, stops early at the one
-    # that terminates or truncates, and returns the sum of their rewards.
-    action_repeat: int = 1
-    # A safety layer under the policy, off by default (the paper has none; its "future work"
-    # names one): a step whose new pose would touch a parked car or a wall is not taken, the
-    # car stays where it is with speed 0, so no collision can happen.
-    emergency_brake: bool = False
-    # With the brake, 0: it stops such a step. k >= 2: it first tries k steering angles evenly
-    # spread over the vehicle's range at the commanded speed, and takes the step with the
-    # clear one nearest the commanded angle; it stops only when none is clear.
-    steer_clear: int = 0
-    # A docking layer under the policy, off by default (the paper's "future work" names an
-    # MPC layer under the RL policy): see DockingConfig.
-    docking: DockingConfig | None = None
 
     def __post_init__(self) -> None:
-        _check_types(self)
-        _require(1 <= self.max_steps <= _MAX_STEPS_LIMIT, "ParkingConfig.max_steps",
+        check_types(self)
+        require(1 <= self.max_steps <= _MAX_STEPS_LIMIT, "ParkingConfig.max_steps",
                  f"an int in [1, {_MAX_STEPS_LIMIT}]", self.max_steps)
         # A car that moves further in one step than the thinnest obstacle is thick could
         # pass through it between two collision tests.
         stride, thinnest = self.vehicle.max_speed * self.vehicle.dt, min(
             self.lot.wall_thickness, self.lot.car_width)
-        _require(stride < thinnest, "VehicleConfig.max_speed * dt",
+        require(stride < thinnest, "VehicleConfig.max_speed * dt",
                  f"< the thinnest obstacle, min(LotConfig.wall_thickness, car_width) = "
                  f"{thinnest} m (else the car can pass through it in one step)", stride)
-        _require(self.action_repeat >= 1, "ParkingConfig.action_repeat", "an int >= 1",
-                 self.action_repeat)
         check_occupancy(self.occupancy, "ParkingConfig.occupancy")
-        _require(self.steer_clear == 0 or self.steer_clear >= 2,
-                 "ParkingConfig.steer_clear", "0 or an int >= 2", self.steer_clear)
-        _require(self.steer_clear == 0 or self.emergency_brake, "ParkingConfig.steer_clear",
-                 "0 without emergency_brake", self.steer_clear)
 
 
 def check_occupancy(value: float, name: str = "occupancy") -> float:
     """Return ``value`` as a float, or raise naming ``name`` when it is not in [0, 1]."""
-    _require(is_number(value) and 0.0 <= value <= 1.0, name, "a number in [0, 1]", value)
+    require(is_number(value) and 0.0 <= value <= 1.0, name, "a number in [0, 1]", value)
     return float(value)

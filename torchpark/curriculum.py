@@ -4,26 +4,25 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs.transforms import Transform
 
-from torchpark.config import check_occupancy, is_number
+from torchpark.config import check_occupancy
 
 PAPER_LEVELS = (0.0, 0.2, 0.4, 0.6, 0.8, 0.9)
 
 
-def _frame_count(name: str, value: int) -> int:
+def frame_count(name: str, value: int) -> int:
     """``value`` if it is an int >= 1 (a number of frames), else a ValueError naming it."""
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ValueError(f"{name} must be an int >= 1, got {value!r}")
     return value
 
 
-class _Curriculum(Transform):
+class FrameCountingTransform(Transform):
     """A transform that counts frames (env steps summed over the batch, ``action_repeat``
     frames each) in a buffer mirrored by a Python int, so that no step reads a device tensor
     and ``state_dict``/``load_state_dict`` carry and resume the count, and that sets its
@@ -42,7 +41,7 @@ class _Curriculum(Transform):
     def _count(self, next_tensordict: TensorDictBase) -> int:
         """Add a step's frames; returns the count before them."""
         container = self.container
-        repeat = container.base_env.config.action_repeat if container is not None else 1
+        repeat = container.base_env.action_repeat if container is not None else 1
         before = self._frames
         self._frames += next_tensordict.numel() * repeat
         self.frames.fill_(self._frames)  # an async fill from a host int: no sync
@@ -62,7 +61,7 @@ class _Curriculum(Transform):
             self._push()
 
 
-class OccupancyCurriculum(_Curriculum):
+class OccupancyCurriculum(FrameCountingTransform):
     """Sets the base ``ParkingEnv``'s occupancy from the number of frames stepped so far.
 
     Level ``k`` (phase ``k + 1``) holds from ``k * frames_per_level`` frames on; the new level
@@ -80,7 +79,7 @@ class OccupancyCurriculum(_Curriculum):
         if not levels:
             raise ValueError("levels must hold at least one occupancy, got an empty sequence")
         self.levels = tuple(check_occupancy(v, f"levels[{i}]") for i, v in enumerate(levels))
-        self.frames_per_level = _frame_count("frames_per_level", frames_per_level)
+        self.frames_per_level = frame_count("frames_per_level", frames_per_level)
 
     @property
     def level(self) -> int:
@@ -110,71 +109,3 @@ class OccupancyCurriculum(_Curriculum):
     def extra_repr(self) -> str:
         return (f"levels={self.levels}, frames_per_level={self.frames_per_level}, "
                 f"frames_seen={self._frames}, phase={self.phase}")
-
-
-class SuccessCurriculum(_Curriculum):
-    """Sets the base ``ParkingEnv``'s success threshold, from a loose ``start`` (so that the
-    success bonus is seen early in training) down to ``final`` as training succeeds.
-
-    Every ``window`` frames, if at least ``target`` of the episodes that ended in the window
-    succeeded, the threshold is multiplied by ``factor`` (and kept >= ``final``); else it
-    stays. The decision is a ``torch.where`` on device and the frame count a Python int: no
-    step reads a device tensor. The threshold and the window's counts are buffers, so
-    ``env.state_dict()`` resumes them.
-
-    Args:
-        start: the threshold on C to begin with, > 0.
-        final: the threshold to end at, in (0, start] (the paper's 4e-4 by default).
-        factor: the multiplier of one tightening, in (0, 1).
-        target: the success rate in (0, 1] of a window that earns a tightening.
-        window: frames (steps of dt summed over the batch) per decision, >= 1.
-    """
-
-    def __init__(self, start: float, final: float = 4e-4, factor: float = 0.5,
-                 target: float = 0.5, window: int = 163_840) -> None:
-        super().__init__()
-        for name, value in (("start", start), ("final", final), ("factor", factor),
-                            ("target", target)):
-            if not is_number(value) or not math.isfinite(value):
-                raise ValueError(f"{name} must be a finite number, got {value!r}")
-        for name, value, ok, bounds in (("start", start, start > 0, "> 0"),
-                                        ("final", final, 0 < final <= start, "in (0, start]"),
-                                        ("factor", factor, 0 < factor < 1, "in (0, 1)"),
-                                        ("target", target, 0 < target <= 1, "in (0, 1]")):
-            if not ok:
-                raise ValueError(f"{name} must be {bounds}, got {value!r}")
-        self.final, self.factor, self.target = final, factor, target
-        self.window = _frame_count("window", window)
-        self.register_buffer("threshold", torch.tensor(float(start)))
-        self.register_buffer("ended", torch.zeros(()))
-        self.register_buffer("succeeded", torch.zeros(()))
-
-    @property
-    def success_threshold(self) -> float:
-        """The current threshold (reads the buffer: a host sync on CUDA)."""
-        return float(self.threshold)
-
-    def _push(self) -> None:
-        container = self.container
-        if container is not None:
-            container.base_env._success_threshold.copy_(self.threshold)
-
-    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
-              ) -> TensorDictBase:
-        done = next_tensordict.get("done")
-        self.ended += done.sum()
-        self.succeeded += (done & next_tensordict.get("success")).sum()
-        before = self._count(next_tensordict)
-        if self._frames // self.window > before // self.window:
-            rate = self.succeeded / self.ended.clamp_min(1.0)
-            tighter = (self.threshold * self.factor).clamp_min(self.final)
-            self.threshold.copy_(torch.where(rate >= self.target, tighter, self.threshold))
-            self.ended.zero_()
-            self.succeeded.zero_()
-            self._push()
-        return next_tensordict
-
-    def extra_repr(self) -> str:
-        return (f"threshold={self.success_threshold:.3g}, final={self.final}, "
-                f"factor={self.factor}, target={self.target}, window={self.window}, "
-                f"frames_seen={self._frames}")

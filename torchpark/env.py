@@ -1,8 +1,9 @@
 """``ParkingEnv``: N parking lots as one batch-locked TorchRL environment.
 
-The class is plumbing: specs, seeding, action checks, and reset muxing. The physics lives in
-``simulation`` (composed from ``vehicle``, ``geometry``, ``lidar``, ``reward``) and the lot in
-``lot``.
+The class is plumbing: specs, seeding, action checks, the reset's mask, and dispatch to the
+paper's step and reset (:mod:`torchpark.sim.step`), or to the aided ones
+(:mod:`torchpark.aids.step`) when it is given an :class:`AidsConfig`. Pictures come from
+:mod:`torchpark.media`, imported on first use.
 """
 
 from __future__ import annotations
@@ -17,25 +18,24 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from torchpark.config import (
-    ParkingConfig,
-    check_flag,
-    check_occupancy,
-    is_integer,
-    is_number,
+from torchpark.aids.brake import steer_angles
+from torchpark.aids.config import AidsConfig
+from torchpark.aids.repeat import hold, merge_steps
+from torchpark.aids.starts import draw_near
+from torchpark.aids.step import (
+    BRAKE_KEYS,
+    DOCKING_KEYS,
+    AidedState,
+    AidState,
+    aided_reset,
+    aided_step,
 )
-from torchpark.geometry import BoxFrame, box_frame
-from torchpark.lidar import line_rotation
-from torchpark.lot import build_layout, draw_goals_and_cars, draw_starts
-from torchpark.rendering import LotRenderer, frame_grid
-from torchpark.simulation import (
-    ParkingState,
-    World,
-    merge_steps,
-    parking_step,
-    reset_rows,
-    steer_angles,
-)
+from torchpark.config import ParkingConfig, check_flag, check_occupancy, is_integer, is_number
+from torchpark.sim.episodes import draw_lots
+from torchpark.sim.layout import build_layout
+from torchpark.sim.observation import observation_dim
+from torchpark.sim.step import ParkingState, parking_step, place, reset_rows
+from torchpark.sim.world import World, build_world
 
 
 class ParkingEnv(EnvBase):
@@ -45,7 +45,9 @@ class ParkingEnv(EnvBase):
         num_envs: number of lots (the batch size), >= 1.
         device: torch device of every tensor.
         seed: seed of the env's own ``torch.Generator``; None draws one from torch's global RNG.
-        config: a :class:`ParkingConfig`; the paper's values by default.
+        config: a :class:`ParkingConfig`; the paper's task by default.
+        aids: an :class:`~torchpark.aids.config.AidsConfig` of agent-side aids (held actions,
+            emergency brake, docking law, near-goal starts); None (default): the paper's env.
         compile_step: run the step and the reset's tensor work through
             ``torch.compile(fullgraph=True)``. Worth it from a few hundred envs on (several times
             faster on CPU); the first step then takes tens of seconds to compile.
@@ -61,12 +63,12 @@ class ParkingEnv(EnvBase):
     100 steps, where success needs ~1 mm), integer and bool actions raise ValueError. Actions
     are detached: no autograd graph enters the state. ``step`` before the first ``reset``
     raises RuntimeError (the state holds no lot yet).
-    Outputs per step: observation (N, 7 + n_rays) float32; reward, done, terminated, truncated,
-    success, collision (N, 1); braked (N, 1) bool, whether the emergency brake stopped the last
-    step of dt; occupancy (N, 1) float32, the occupancy the current lot was drawn with.
-    Setting :attr:`occupancy` applies to lots drawn at later resets. With
-    ``config.action_repeat = k`` each step holds the action for up to k steps of ``dt``
-    (stopping at the one that ends the episode) and returns the sum of their rewards.
+    Outputs per step: observation (N, NAV_DIM + n_rays) float32 (``torchpark.sim.observation``);
+    reward, done, terminated, truncated, success, collision (N, 1); occupancy (N, 1) float32,
+    the occupancy the current lot was drawn with. With the brake also braked (N, 1) bool (it
+    stopped the last step of dt) and interventions (N, 1) int64 (steps of dt it stopped or
+    steered this episode); with the docking law docking_engaged (N, 1) bool (it drives this
+    episode). Setting :attr:`occupancy` applies to lots drawn at later resets.
     """
 
     batch_locked = True
@@ -78,6 +80,7 @@ class ParkingEnv(EnvBase):
         device: torch.device | str = "cpu",
         seed: int | None = None,
         config: ParkingConfig | None = None,
+        aids: AidsConfig | None = None,
         compile_step: bool = False,
         compile_kwargs: dict | None = None,
         validate_actions: bool = True,
@@ -91,42 +94,51 @@ class ParkingEnv(EnvBase):
             raise TypeError(f"compile_kwargs must be a dict or None, got {compile_kwargs!r}")
         if config is not None and not isinstance(config, ParkingConfig):
             raise TypeError(f"config must be a ParkingConfig, got {type(config).__name__}")
+        if aids is not None and not isinstance(aids, AidsConfig):
+            raise TypeError(f"aids must be an AidsConfig or None, got {type(aids).__name__}")
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self.num_envs = num_envs
-        self.config = config if config is not None else ParkingConfig()
+        self.config = cfg = config if config is not None else ParkingConfig()
+        self.aids = aids
         self.validate_actions = validate_actions
-        self._occupancy = self.config.occupancy
-        cfg = self.config
+        self._occupancy = cfg.occupancy
         self.layout = build_layout(cfg.lot, cfg.vehicle, self.device)
-        # World holds this tensor; the success_threshold setter and SuccessCurriculum change it
-        # in place, and a compiled step reads it at run time.
-        self._success_threshold = torch.tensor(cfg.reward.success_threshold,
-                                               dtype=torch.float32, device=self.device)
-        self._world = World(
-            obstacles=BoxFrame(*(t.contiguous() for t in box_frame(self.layout.obstacles))),
-            rotation=line_rotation(cfg.lidar.n_rays, self.device),
-            goal_poses=self.layout.goal_poses,
-            slots_and_walls=self.layout.slots_and_walls,
-            extent=torch.tensor([self.layout.width, self.layout.height], device=self.device),
-            success_threshold=self._success_threshold,
-            steer_angles=steer_angles(cfg, self.device),
-        )
-        step_fn = partial(parking_step, world=self._world, cfg=cfg)
-        reset_fn = partial(reset_rows, world=self._world, cfg=cfg)
-        merge_fn = merge_steps
+        # SuccessCurriculum and set_success_threshold change the world's threshold in place;
+        # a compiled step reads it at run time.
+        self._world = build_world(self.layout, cfg)
+        if aids is None:
+            step = partial(parking_step, world=self._world, cfg=cfg)
+            reset = partial(reset_rows, world=self._world, cfg=cfg)
+        else:
+            angles = steer_angles(cfg, aids.brake, self.device) if aids.brake is not None \
+                else torch.empty(0, device=self.device)
+            step = partial(aided_step, world=self._world, steer_angles=angles, cfg=cfg,
+                           aids=aids)
+            reset = partial(aided_reset, world=self._world, cfg=cfg)
+        functions = [step, reset, merge_steps, partial(place, world=self._world, cfg=cfg)]
         if compile_step:
-            step_fn, reset_fn, merge_fn = (
-                torch.compile(f, fullgraph=True, **(compile_kwargs or {}))
-                for f in (step_fn, reset_fn, merge_fn)
-            )
-        self._step_fn, self._reset_fn, self._merge_fn = step_fn, reset_fn, merge_fn
+            functions = [torch.compile(f, fullgraph=True, **(compile_kwargs or {}))
+                         for f in functions]
+        step, self._reset_fn, merge, self._place_fn = functions
+        self._step_fn = hold(step, merge, self.action_repeat)
         self._make_specs()
         self._generator = torch.Generator(device=self.device)
         self._set_seed(seed)
-        self._init_state()
-        self._renderer: LotRenderer | None = None
+        m = self._world.obstacles.cx.shape[0]
+        self._state: ParkingState | AidedState = ParkingState.zeros(num_envs, m, self.device)
+        if aids is not None:
+            self._state = AidedState(self._state, AidState.zeros(num_envs, self.device))
+        self._observation = torch.zeros(num_envs, self.obs_dim, device=self.device)
+        self._started = False  # no lot drawn yet: reset() first
+        self._renderer = None  # a media.rendering.LotRenderer, made on the first picture
 
     # ------------------------------------------------------------------ configuration
+    @property
+    def action_repeat(self) -> int:
+        """Steps of dt one env step holds its action for (``aids.action_repeat``; 1 without
+        aids): frames per env step."""
+        return 1 if self.aids is None else self.aids.action_repeat
+
     @property
     def occupancy(self) -> float:
         """Fraction in [0, 1] of the non-goal slots that hold a parked car in lots drawn from
@@ -140,18 +152,36 @@ class ParkingEnv(EnvBase):
     @property
     def success_threshold(self) -> float:
         """The success test's threshold on C (``config.reward.success_threshold`` at first).
-        Setting it applies from the next step; ``SuccessCurriculum`` lowers it in training."""
-        return float(self._success_threshold)
+        Reading it is a host sync on CUDA; set it with :meth:`set_success_threshold`."""
+        return float(self._world.success_threshold)
 
     @success_threshold.setter
     def success_threshold(self, value: float) -> None:
+        self.set_success_threshold(value)
+
+    def set_success_threshold(self, value: float | torch.Tensor) -> None:
+        """Set the success test's threshold on C from the next step on: a finite number > 0,
+        or a 0-d tensor (copied on device, no host sync, so it is not checked)."""
+        if isinstance(value, torch.Tensor):
+            if value.dim() != 0 or not value.is_floating_point():
+                raise ValueError(f"success_threshold must be a 0-d float tensor, got shape "
+                                 f"{tuple(value.shape)} {value.dtype}")
+            self._world.success_threshold.copy_(value)
+            return
         if not is_number(value) or not math.isfinite(value) or value <= 0:
             raise ValueError(f"success_threshold must be a finite float > 0, got {value!r}")
-        self._success_threshold.fill_(float(value))
+        self._world.success_threshold.fill_(float(value))
 
     @property
     def obs_dim(self) -> int:
-        return 7 + self.config.lidar.n_rays
+        return observation_dim(self.config)
+
+    def _aid_keys(self) -> tuple[str, ...]:
+        """The aids' output keys this env emits."""
+        if self.aids is None:
+            return ()
+        return ((BRAKE_KEYS if self.aids.brake is not None else ())
+                + (DOCKING_KEYS if self.aids.docking is not None else ()))
 
     def _make_specs(self) -> None:
         n, dev, veh = self.num_envs, self.device, self.config.vehicle
@@ -159,12 +189,14 @@ class ParkingEnv(EnvBase):
         def flag() -> Binary:
             return Binary(n=1, shape=(n, 1), dtype=torch.bool, device=dev)
 
+        aid_specs = {key: Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
+                     if key == "interventions" else flag() for key in self._aid_keys()}
         self.observation_spec = Composite(
             observation=Unbounded(shape=(n, self.obs_dim), dtype=torch.float32, device=dev),
             success=flag(),
             collision=flag(),
-            braked=flag(),
             occupancy=Bounded(low=0.0, high=1.0, shape=(n, 1), dtype=torch.float32, device=dev),
+            **aid_specs,
             shape=(n,),
             device=dev,
         )
@@ -186,24 +218,47 @@ class ParkingEnv(EnvBase):
             seed = int(torch.randint(0, 2**62, (), dtype=torch.int64))
         self._generator.manual_seed(int(seed))
 
-    def _init_state(self) -> None:
-        n, dev = self.num_envs, self.device
-        m = self._world.obstacles.cx.shape[0]
-        self._state = ParkingState(
-            pose=torch.zeros(n, 3, device=dev),
-            speed=torch.zeros(n, device=dev),
-            goal_slot=torch.zeros(n, dtype=torch.int64, device=dev),
-            goal=torch.zeros(n, 3, device=dev),
-            present=torch.zeros(n, m, device=dev),
-            steps=torch.zeros(n, dtype=torch.int64, device=dev),
-            occupancy=torch.zeros(n, device=dev),
-            braked=torch.zeros(n, dtype=torch.bool, device=dev),
-            brakes=torch.zeros(n, dtype=torch.int64, device=dev),
-            docking=torch.zeros(n, dtype=torch.bool, device=dev),
-            reversing=torch.zeros(n, dtype=torch.bool, device=dev),
-        )
-        self._observation = torch.zeros(n, self.obs_dim, device=dev)
-        self._started = False  # no lot drawn yet: reset() first
+    @property
+    def world(self) -> World:
+        """The constants every env shares (obstacle boxes, goal poses, the success threshold):
+        read-only, for analysis and tests."""
+        return self._world
+
+    @property
+    def state(self) -> ParkingState:
+        """The paper's per-env state (read-only view for analysis and tests)."""
+        return self._state.sim if self.aids is not None else self._state
+
+    @property
+    def aid_state(self) -> AidState | None:
+        """The aids' per-env state (None without aids)."""
+        return self._state.aids if self.aids is not None else None
+
+    def set_state(self, state: ParkingState, rows: torch.Tensor | None = None) -> TensorDictBase:
+        """Put the rows ``rows`` ((N,) bool; default all) in the given paper state (a
+        :class:`ParkingState` of N rows, e.g. ``env.state._replace(pose=...)``) at the start
+        of an episode: the step counts and the aids' state of those rows are kept as given
+        and cleared, respectively. Returns what a reset returns, observing the new state. For
+        tests and analysis: nothing checks that the state is a valid start."""
+        if not isinstance(state, ParkingState):
+            raise TypeError(f"state must be a ParkingState, got {type(state).__name__}")
+        for name, new, old in zip(ParkingState._fields, state, self.state, strict=True):
+            if not isinstance(new, torch.Tensor) or new.shape != old.shape \
+                    or new.dtype != old.dtype or new.device != old.device:
+                raise ValueError(f"state.{name} must be a {old.dtype} tensor of shape "
+                                 f"{tuple(old.shape)} on {old.device}, got {new!r}")
+        mask = torch.ones(self.num_envs, dtype=torch.bool, device=self.device) \
+            if rows is None else rows.to(self.device, torch.bool).reshape(self.num_envs)
+        sim, self._observation = self._place_fn(self.state, self._observation, mask, state)
+        if self.aids is not None:
+            cleared = AidState.zeros(self.num_envs, self.device)
+            aid = AidState(*(torch.where(mask, a, b) for a, b in zip(cleared, self.aid_state,
+                                                                       strict=True)))
+            self._state = AidedState(sim, aid)
+        else:
+            self._state = sim
+        self._started = True
+        return self._reset_output()
 
     def randomize_step_counts(self) -> None:
         """Set every env's step count to a uniform draw in [0, max_steps), from the env's
@@ -215,18 +270,14 @@ class ParkingEnv(EnvBase):
         """
         steps = torch.randint(self.config.max_steps, (self.num_envs,),
                               generator=self._generator, device=self.device)
-        self._state = self._state._replace(steps=steps)
-
-    @property
-    def state(self) -> ParkingState:
-        """The current per-env state (read-only view for analysis and tests)."""
-        return self._state
+        sim = self.state._replace(steps=steps)
+        self._state = AidedState(sim, self.aid_state) if self.aids is not None else sim
 
     # ------------------------------------------------------------------ pictures
     def render(self, index: int = 0) -> np.ndarray:
-        """Picture of env ``index``'s lot now, (H, W, 3) uint8 (see :mod:`torchpark.rendering`)."""
-        if not is_integer(index) \
-                or not 0 <= index < self.num_envs:
+        """Picture of env ``index``'s lot now, (H, W, 3) uint8 (see
+        :mod:`torchpark.media.rendering`)."""
+        if not is_integer(index) or not 0 <= index < self.num_envs:
             raise IndexError(f"index must be an int in [0, {self.num_envs - 1}], got {index!r}")
         return self.render_grid([int(index)])
 
@@ -243,48 +294,45 @@ class ParkingEnv(EnvBase):
         if bad or not indices:
             raise IndexError(f"indices must be non-empty ints in [0, {self.num_envs - 1}], "
                              f"got {bad or indices}")
+        from torchpark.media.rendering import LotRenderer, picture_envs  # Pillow, on demand
+
         if self._renderer is None:
             self._renderer = LotRenderer(self.layout, self.config)
-        rows = torch.tensor(indices, device=self.device)
-        s = self.layout.num_slots
-        parked = (self._state.present[rows, :s] > 0.5).cpu().numpy()
-        goal = self._state.goal_slot[rows].cpu().numpy()
-        pose = self._state.pose[rows].cpu().numpy()
-        lidar = self._observation[rows, 7:].cpu().numpy()
-        frames = [self._renderer.frame(*row) for row in zip(parked, goal, pose, lidar, strict=True)]
-        return frames[0] if len(frames) == 1 else frame_grid(frames, columns)
+        return picture_envs(self._renderer, self.state, self._observation, indices, columns)
 
     # ------------------------------------------------------------------ EnvBase hooks
+    def _outputs(self, **fields: torch.Tensor) -> TensorDictBase:
+        aid = self.aid_state
+        aid_outputs = {key: getattr(aid, key)[:, None] for key in self._aid_keys()}
+        return TensorDict(
+            {**fields, "observation": self._observation.clone(),  # the caller's, not our buffer
+             "occupancy": self.state.occupancy[:, None], **aid_outputs},
+            batch_size=self.batch_size, device=self.device,
+        )
+
+    def _reset_output(self) -> TensorDictBase:
+        no = torch.zeros(self.num_envs, 1, dtype=torch.bool, device=self.device)
+        return self._outputs(success=no, collision=no.clone(), done=no.clone(),
+                             terminated=no.clone(), truncated=no.clone())
+
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         n, dev = self.num_envs, self.device
-        if tensordict is not None and "_reset" in tensordict.keys():
+        if tensordict is not None and "_reset" in tensordict.keys() and self._started:
             mask = tensordict.get("_reset").reshape(n)
-        else:
+        else:  # the first reset draws every row, whatever the mask
             mask = torch.ones(n, dtype=torch.bool, device=dev)
         # Every row draws a new lot; the masked rows take it (torch.where, no sync), the
         # others keep their state bit for bit.
-        goal, occupied = draw_goals_and_cars(
-            n, self.layout.num_slots, self._occupancy, self._generator, dev
-        )
-        start = draw_starts(self.layout.goal_poses[goal], self.layout, self.config.lot,
-                            self._generator)
-        occupancy = torch.full((n,), self._occupancy, device=dev)
-        if not self._started:  # the first reset draws every row, whatever the mask
-            mask = torch.ones_like(mask)
-        self._state, self._observation = self._reset_fn(
-            self._state, self._observation, mask, goal, occupied, occupancy, start
-        )
+        lots = draw_lots(n, self._occupancy, self.layout, self.config.lot, self._generator)
+        draws = (lots,)
+        if self.aids is not None:
+            near = self.aids.near_goal_starts
+            draws += (None if near is None else draw_near(self._world.goal_poses[lots.goal_slot],
+                                                          near, self._generator),)
+        self._state, self._observation = self._reset_fn(self._state, self._observation, mask,
+                                                        *draws)
         self._started = True
-        no = torch.zeros(n, 1, dtype=torch.bool, device=dev)
-        return TensorDict(
-            {
-                "observation": self._observation.clone(),  # the caller's, not our buffer
-                "success": no, "collision": no.clone(), "braked": no.clone(),
-                "occupancy": self._state.occupancy[:, None],
-                "done": no.clone(), "terminated": no.clone(), "truncated": no.clone(),
-            },
-            batch_size=self.batch_size, device=dev,
-        )
+        return self._reset_output()
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         if not self._started:
@@ -305,12 +353,5 @@ class ParkingEnv(EnvBase):
         state, out, finite = self._step_fn(self._state, action)
         if self.validate_actions and not bool(finite):  # before the state is kept
             raise ValueError("action must be finite (no NaN or inf); got a non-finite value")
-        for _ in range(self.config.action_repeat - 1):  # the held action's further dt steps
-            state, out = self._merge_fn(state, out, *self._step_fn(state, action)[:2])
         self._state, self._observation = state, out.observation
-        return TensorDict(
-            {**out._asdict(), "observation": out.observation.clone(),
-             "occupancy": self._state.occupancy[:, None],
-             "braked": self._state.braked[:, None]},
-            batch_size=self.batch_size, device=self.device,
-        )
+        return self._outputs(**{k: v for k, v in out._asdict().items() if k != "observation"})

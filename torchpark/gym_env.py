@@ -4,7 +4,8 @@
 
 Keyword arguments of ``make``/``make_vec``: ``occupancy``, ``device``, ``seed`` (the initial
 seed; ``reset(seed=...)`` reseeds), ``compile_step``, ``physical_actions``, ``config`` (a
-:class:`ParkingConfig`) and any :class:`ParkingConfig` field (``max_steps=500``,
+:class:`ParkingConfig`), ``aids`` (an :class:`AidsConfig`; None, the paper's env, by default)
+and any :class:`ParkingConfig` field (``max_steps=500``,
 ``reward=RewardConfig(...)``), which replaces that field of ``config``.
 
 Actions: by default the normalised Box [-1, 1]^2 that Gymnasium's ``check_env`` and
@@ -28,8 +29,10 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from tensordict import TensorDict, TensorDictBase
 
+from torchpark.aids.config import AidsConfig
 from torchpark.config import ParkingConfig, check_flag
 from torchpark.env import ParkingEnv
+from torchpark.sim.observation import NAV_DIM
 
 ENV_ID = "torchpark/Parking-v0"
 RENDER_MODES = ["rgb_array"]
@@ -38,16 +41,17 @@ INFO_KEYS = ("success", "collision", "occupancy")
 
 def _make_batched(num_envs: int, occupancy: float | None, device: torch.device | str,
                   seed: int | None, compile_step: bool, config: ParkingConfig | None,
-                  fields: dict[str, Any]) -> ParkingEnv:
+                  aids: AidsConfig | None, fields: dict[str, Any]) -> ParkingEnv:
     config = config if config is not None else ParkingConfig()
     names = {f.name for f in dataclasses.fields(ParkingConfig)}
     unknown = sorted(set(fields) - names)
     if unknown:
         raise TypeError(f"unknown keyword arguments {unknown}: expected occupancy, device, "
-                        f"seed, compile_step, physical_actions, config, render_mode or "
+                        f"seed, compile_step, physical_actions, config, aids, render_mode or "
                         f"ParkingConfig fields {sorted(names)}")
     config = dataclasses.replace(config, **fields)
-    env = ParkingEnv(num_envs, device=device, seed=seed, config=config, compile_step=compile_step)
+    env = ParkingEnv(num_envs, device=device, seed=seed, config=config, aids=aids,
+                     compile_step=compile_step)
     if occupancy is not None:
         env.occupancy = occupancy
     return env
@@ -70,7 +74,7 @@ def _spaces(env: ParkingEnv, physical_actions: bool
     reach_x, reach_y = env.layout.width + reach, env.layout.height + reach
     high = np.array([reach_x, reach_y, 1, 1, veh.max_speed, 1, 1] + [1] * n_rays, np.float32)
     low = -high
-    low[7:] = 0.0
+    low[NAV_DIM:] = 0.0
     observation = spaces.Box(low, high, dtype=np.float32)
     limits = np.array([veh.max_speed, veh.max_steer], np.float32)
     bound = limits if physical_actions else np.ones(2, np.float32)
@@ -129,9 +133,11 @@ class ParkingGymEnv(gymnasium.Env):
     def __init__(self, render_mode: str | None = None, *, occupancy: float | None = None,
                  device: torch.device | str = "cpu", seed: int | None = None,
                  compile_step: bool = False, physical_actions: bool = False,
-                 config: ParkingConfig | None = None, **fields: Any) -> None:
+                 config: ParkingConfig | None = None, aids: AidsConfig | None = None,
+                 **fields: Any) -> None:
         self.render_mode = _check_render_mode(render_mode)
-        self.env = _make_batched(1, occupancy, device, seed, compile_step, config, fields)
+        self.env = _make_batched(1, occupancy, device, seed, compile_step, config, aids,
+                                 fields)
         self.observation_space, self.action_space, self._scale = _spaces(
             self.env, check_flag(physical_actions, "physical_actions"))
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.env.config.vehicle.dt)}
@@ -173,7 +179,7 @@ class ParkingVectorEnv(VectorEnv):
     the ended episode is in ``info["final_obs"]`` and its info in ``info["final_info"]``
     (rows marked by ``info["_final_obs"]``), as Gymnasium's ``SyncVectorEnv`` does in that
     mode. ``info`` also holds ``success``, ``collision`` and ``occupancy`` arrays (N,).
-    ``render()`` returns a tuple of the first ``render_envs`` lots' frames.
+    ``render()`` returns a tuple of the first ``render_envs`` lots' pictures.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": RENDER_MODES, "render_fps": 10,
@@ -183,9 +189,11 @@ class ParkingVectorEnv(VectorEnv):
                  occupancy: float | None = None, device: torch.device | str = "cpu",
                  seed: int | None = None, compile_step: bool = False,
                  physical_actions: bool = False, config: ParkingConfig | None = None,
-                 render_envs: int = 16, **fields: Any) -> None:
+                 aids: AidsConfig | None = None, render_envs: int = 16,
+                 **fields: Any) -> None:
         self.render_mode = _check_render_mode(render_mode)
-        self.env = _make_batched(num_envs, occupancy, device, seed, compile_step, config, fields)
+        self.env = _make_batched(num_envs, occupancy, device, seed, compile_step,
+                                 config, aids, fields)
         self.num_envs = num_envs
         self.render_envs = min(render_envs, num_envs)
         self.single_observation_space, self.single_action_space, self._scale = _spaces(

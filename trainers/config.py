@@ -7,7 +7,6 @@ error before training starts.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field, replace
 
@@ -15,52 +14,68 @@ import torch
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from torchpark.config import DockingConfig, LotConfig, ParkingConfig, RewardConfig
+from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts
+from torchpark.config import ParkingConfig, RewardConfig
 from torchpark.curriculum import PAPER_LEVELS
 
 
 @dataclass
 class EnvConfig:
+    """The simulator: the paper's env (torchpark.ParkingConfig) with these fields set."""
+
     num_envs: int = 1
     device: str = "cpu"
     compile_step: bool = False
     max_steps: int = 1000
-    # Append the goal seen from the car (torchpark.features) to the policy's input.
-    goal_features: bool = False
-    # The training env's success threshold on C (evaluation always uses the paper's 4e-4);
-    # curriculum.success_start replaces it with a curriculum.
-    success_threshold: float = 4e-4
-    # The probability that a training episode starts near its goal (LotConfig.near_goal_starts;
-    # evaluation always draws the paper's uniform starts).
-    near_goal_starts: float = 0.0
-    # The near-goal box: LotConfig.near_goal_reach / _lateral / _heading (m, m, rad).
-    near_goal_reach: float = LotConfig.near_goal_reach
-    near_goal_lateral: float = LotConfig.near_goal_lateral
-    near_goal_heading: float = LotConfig.near_goal_heading
-    # None: the policy commands (v, delta) directly (the paper). A list: it acts in [-1, 1]
-    # and the env receives (5 m/s, 0.785 rad) * sign(u) |u| ** exponents
-    # (torchpark.PowerActionMap), e.g. [3, 1] for fine speed control near standstill.
-    action_exponents: list[float] | None = None
-    # Steps of dt (0.1 s) each action is held for (ParkingConfig.action_repeat; 1: the paper).
+
+
+@dataclass
+class AgentConfig:
+    """What the agent is made of besides its network: the same in training and evaluation
+    (torchpark.AidsConfig and the policy's input and action transforms). All off: the paper's
+    agent."""
+
+    # Steps of dt (0.1 s) each action is held for (AidsConfig.action_repeat; 1: the paper).
     # Frames stay steps of dt: a batch of N envs x T actions is N x T x action_repeat frames.
     action_repeat: int = 1
-    # ParkingConfig.emergency_brake: a step that would collide is not taken (speed 0).
+    # None: the policy commands (v, delta) directly (the paper). A list: it acts in [-1, 1]
+    # and the env receives (max_speed, max_steer) * sign(u) |u| ** exponents
+    # (torchpark.PowerActionMap), e.g. [3, 1] for fine speed control near standstill.
+    action_exponents: list[float] | None = None
+    # Append the goal seen from the car (torchpark.GoalFrameFeatures) to the policy's input.
+    goal_features: bool = False
+    # The emergency brake (torchpark.BrakeConfig): a step that would collide is not taken.
     emergency_brake: bool = False
-    # ParkingConfig.steer_clear: with the brake, the steering angles it tries (the clear one
-    # nearest the commanded) before stopping a step; 0: it stops.
+    # With the brake, the steering angles it tries (the clear one nearest the commanded)
+    # before stopping a step; 0: it stops.
     steer_clear: int = 0
     # Append the env's braked flag (the brake stopped the last step) to the policy's input:
     # a deterministic policy that pushes into a parked car sees that it was stopped.
     observe_brake: bool = False
-    # RewardConfig.brake_penalty: added to the reward of a step the brake stops (training).
-    brake_penalty: float = 0.0
-    # ParkingConfig.docking: a fixed feedback law (torchpark.docking) drives once the car is
-    # in the funnel behind its goal: 0 to docking_reach m back along the slot axis, within
-    # docking_lateral m and docking_heading rad of it (training and evaluation).
+    # The docking law (torchpark.DockingConfig) drives once the car is in the funnel behind
+    # its goal: 0 to docking_reach m back along the slot axis, within docking_lateral m and
+    # docking_heading rad of it.
     docking: bool = False
     docking_reach: float = DockingConfig.reach
     docking_lateral: float = DockingConfig.lateral
     docking_heading: float = DockingConfig.heading
+
+
+@dataclass
+class TrainAidsConfig:
+    """Aids of training only: evaluation keeps the paper's starts, reward and success test."""
+
+    # The training env's success threshold on C; curriculum.success_start replaces it with a
+    # curriculum.
+    success_threshold: float = 4e-4
+    # The probability that a training episode starts near its goal (NearGoalStarts), and the
+    # near-goal box: reach, lateral, heading (m, m, rad).
+    near_goal_starts: float = 0.0
+    near_goal_reach: float = NearGoalStarts.reach
+    near_goal_lateral: float = NearGoalStarts.lateral
+    near_goal_heading: float = NearGoalStarts.heading
+    # BrakeConfig.penalty: added to the reward of a step the brake stops.
+    brake_penalty: float = 0.0
 
 
 @dataclass
@@ -88,17 +103,17 @@ class LossConfig:
     gamma: float = 0.99
     gae_lambda: float = 0.95
     clip_epsilon: float = 0.2
-    entropy_coeff: float = 0.0
-    critic_coeff: float = 0.5
+    entropy_coef: float = 0.0
+    critic_coef: float = 0.5
     mini_batch_size: int = 64
     ppo_epochs: int = 10
-    max_grad_norm: float = 0.5
     reward_scale: float = 1.0  # rewards are multiplied by this before GAE and the critic
 
 
 @dataclass
 class OptimConfig:
     lr: float = 3e-4
+    max_grad_norm: float = 0.5
 
 
 @dataclass
@@ -119,6 +134,8 @@ class LoggerConfig:
 @dataclass
 class TrainConfig:
     env: EnvConfig = field(default_factory=EnvConfig)
+    agent: AgentConfig = field(default_factory=AgentConfig)
+    train: TrainAidsConfig = field(default_factory=TrainAidsConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
     collector: CollectorConfig = field(default_factory=CollectorConfig)
     loss: LossConfig = field(default_factory=LossConfig)
@@ -142,9 +159,11 @@ def _fast() -> TrainConfig:
     gamma 0.995, rewards x0.1 for the critic. Same reward, success test (4e-4) and 6-phase
     curriculum (2M frames = steps of dt per level) as the paper."""
     return TrainConfig(
-        env=EnvConfig(num_envs=1024, compile_step=True, goal_features=True, action_repeat=5,
-                      action_exponents=[1.0, 1.0], near_goal_starts=0.5,
-                      emergency_brake=True, steer_clear=5, observe_brake=True, docking=True),
+        env=EnvConfig(num_envs=1024, compile_step=True),
+        agent=AgentConfig(action_repeat=5, action_exponents=[1.0, 1.0], goal_features=True,
+                          emergency_brake=True, steer_clear=5, observe_brake=True,
+                          docking=True),
+        train=TrainAidsConfig(near_goal_starts=0.5),
         collector=CollectorConfig(frames_per_batch=1024 * 32 * 5),
         loss=LossConfig(gamma=0.995, mini_batch_size=1024, ppo_epochs=8, reward_scale=0.1),
         model=ModelConfig(hidden=[256, 256], init_log_std=-1.0, state_dependent_std=True),
@@ -182,27 +201,57 @@ def load_config(preset: str, overrides: list[str] | None = None) -> TrainConfig:
     return cfg
 
 
-def parking_config(cfg: TrainConfig, training: bool) -> ParkingConfig:
-    """The env's config for this run. What the agent is (held actions, the brake, the docking
-    layer) is the same in training and evaluation; the training aids (success threshold,
-    brake penalty, near-goal starts) apply only with ``training``, evaluation keeps the
-    paper's."""
-    config = ParkingConfig(max_steps=cfg.env.max_steps, action_repeat=cfg.env.action_repeat,
-                           emergency_brake=cfg.env.emergency_brake,
-                           steer_clear=cfg.env.steer_clear,
-                           docking=DockingConfig(reach=cfg.env.docking_reach,
-                                                 lateral=cfg.env.docking_lateral,
-                                                 heading=cfg.env.docking_heading)
-                           if cfg.env.docking else None)
-    if not training:
-        return config
-    return dataclasses.replace(
-        config, reward=RewardConfig(success_threshold=cfg.env.success_threshold,
-                                    brake_penalty=cfg.env.brake_penalty),
-        lot=LotConfig(near_goal_starts=cfg.env.near_goal_starts,
-                      near_goal_reach=cfg.env.near_goal_reach,
-                      near_goal_lateral=cfg.env.near_goal_lateral,
-                      near_goal_heading=cfg.env.near_goal_heading))
+def env_configs(cfg: TrainConfig, training: bool) -> tuple[ParkingConfig, AidsConfig | None]:
+    """The env's task and aids for this run. What the agent is made of (``agent``: held
+    actions, the brake, the docking law) is the same in training and evaluation; the training
+    aids (``train``: success threshold, brake penalty, near-goal starts) apply only with
+    ``training``, evaluation keeps the paper's. No aid at all: (config, None), the paper's
+    env."""
+    agent, aids = cfg.agent, cfg.train
+    threshold = aids.success_threshold if training else RewardConfig.success_threshold
+    config = ParkingConfig(max_steps=cfg.env.max_steps,
+                           reward=RewardConfig(success_threshold=threshold))
+    brake = BrakeConfig(steer_clear=agent.steer_clear,
+                        penalty=aids.brake_penalty if training else 0.0) \
+        if agent.emergency_brake else None
+    docking = DockingConfig(reach=agent.docking_reach, lateral=agent.docking_lateral,
+                            heading=agent.docking_heading) if agent.docking else None
+    near = NearGoalStarts(probability=aids.near_goal_starts, reach=aids.near_goal_reach,
+                          lateral=aids.near_goal_lateral, heading=aids.near_goal_heading) \
+        if training and aids.near_goal_starts > 0 else None
+    if agent.action_repeat == 1 and brake is None and docking is None and near is None:
+        return config, None
+    return config, AidsConfig(action_repeat=agent.action_repeat, brake=brake, docking=docking,
+                              near_goal_starts=near)
+
+
+# Where a field lived in checkpoints written before the config had agent and train sections
+# (and before torchrl's recipe names): old dot name -> new dot name.
+_MOVED = {
+    **{f"env.{name}": f"agent.{name}" for name in (
+        "action_repeat", "action_exponents", "goal_features", "emergency_brake", "steer_clear",
+        "observe_brake", "docking", "docking_reach", "docking_lateral", "docking_heading")},
+    **{f"env.{name}": f"train.{name}" for name in (
+        "success_threshold", "near_goal_starts", "near_goal_reach", "near_goal_lateral",
+        "near_goal_heading", "brake_penalty")},
+    "loss.entropy_coeff": "loss.entropy_coef",
+    "loss.critic_coeff": "loss.critic_coef",
+    "loss.max_grad_norm": "optim.max_grad_norm",
+}
+
+
+def upgrade_saved(saved: dict) -> dict:
+    """A config dict as saved in a checkpoint, with fields of the earlier layout moved to
+    where they live now (``_MOVED``); a current one is returned as it is."""
+    upgraded = {section: dict(fields) if isinstance(fields, dict) else fields
+                for section, fields in saved.items()}
+    for old, new in _MOVED.items():
+        old_section, old_name = old.split(".")
+        fields = upgraded.get(old_section)
+        if isinstance(fields, dict) and old_name in fields:
+            new_section, new_name = new.split(".")
+            upgraded.setdefault(new_section, {})[new_name] = fields.pop(old_name)
+    return upgraded
 
 
 def check_device(device: str, name: str) -> None:
@@ -227,11 +276,13 @@ def _check(cfg: TrainConfig) -> None:
     loss, c = cfg.loss, cfg.curriculum
     _require(finite(loss.gamma) and 0 < loss.gamma <= 1, "loss.gamma", "in (0, 1]", loss.gamma)
     _require(0 <= loss.gae_lambda <= 1, "loss.gae_lambda", "in [0, 1]", loss.gae_lambda)
-    for name in ("clip_epsilon", "critic_coeff", "max_grad_norm", "reward_scale"):
+    for name in ("clip_epsilon", "critic_coef", "reward_scale"):
         value = getattr(loss, name)
         _require(finite(value) and value > 0, f"loss.{name}", "a finite number > 0", value)
-    _require(finite(loss.entropy_coeff) and loss.entropy_coeff >= 0, "loss.entropy_coeff",
-             "a finite number >= 0", loss.entropy_coeff)
+    _require(finite(cfg.optim.max_grad_norm) and cfg.optim.max_grad_norm > 0,
+             "optim.max_grad_norm", "a finite number > 0", cfg.optim.max_grad_norm)
+    _require(finite(loss.entropy_coef) and loss.entropy_coef >= 0, "loss.entropy_coef",
+             "a finite number >= 0", loss.entropy_coef)
     _require(loss.ppo_epochs >= 1, "loss.ppo_epochs", "an int >= 1", loss.ppo_epochs)
     _require(finite(cfg.optim.lr) and cfg.optim.lr > 0, "optim.lr", "a finite number > 0",
              cfg.optim.lr)
@@ -259,17 +310,20 @@ def _check(cfg: TrainConfig) -> None:
     check_device(cfg.env.device, "env.device")
     for training in (True, False):  # the env's fields, as torchpark checks them
         try:
-            parking_config(cfg, training)
+            env_configs(cfg, training)
         except (TypeError, ValueError) as err:
             raise ValueError(f"env: {err}") from None
-    n, batch, k = cfg.env.num_envs, cfg.collector.frames_per_batch, cfg.env.action_repeat
+    _require(not cfg.agent.observe_brake or cfg.agent.emergency_brake, "agent.observe_brake",
+             "False without agent.emergency_brake (there is no brake flag to observe)",
+             cfg.agent.observe_brake)
+    _require(cfg.agent.steer_clear == 0 or cfg.agent.emergency_brake, "agent.steer_clear",
+             "0 without agent.emergency_brake", cfg.agent.steer_clear)
+    n, batch, k = cfg.env.num_envs, cfg.collector.frames_per_batch, cfg.agent.action_repeat
     if n < 1:
         raise ValueError(f"env.num_envs must be >= 1, got {n}")
-    if k < 1:
-        raise ValueError(f"env.action_repeat must be >= 1, got {k}")
     if batch < n * k or batch % (n * k):
         raise ValueError(f"collector.frames_per_batch must be a multiple of env.num_envs x "
-                         f"env.action_repeat = {n * k}, got {batch}")
+                         f"agent.action_repeat = {n * k}, got {batch}")
     _require(cfg.collector.total_frames >= batch, "collector.total_frames",
              f">= collector.frames_per_batch = {batch}", cfg.collector.total_frames)
     if not 1 <= cfg.loss.mini_batch_size <= batch // k:

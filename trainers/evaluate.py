@@ -18,27 +18,20 @@ from __future__ import annotations
 
 import argparse
 import csv
-import math
-from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from torch.utils._pytree import tree_map_only
-from torchrl.envs import Compose, TransformedEnv
-from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
-from torchrl.modules import ProbabilisticActor
-from tqdm import tqdm
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchpark import ParkingEnv
 from torchpark.curriculum import PAPER_LEVELS
-from torchpark.features import goal_in_vehicle_frame
-from torchpark.recording import record_video
+from torchpark.media.recording import record_video
+from torchpark.runner import run_episodes
 from trainers.checkpoint import load_checkpoint
-from trainers.config import TrainConfig, check_device
-from trainers.models import NORMALISED, make_ppo_models
-from trainers.ppo import parking_config, policy_input
+from trainers.config import TrainConfig, check_device, upgrade_saved
+from trainers.utils import make_eval_env, make_policy
 
 # Table 2 of the paper: success rate per curriculum phase (occupancy level).
 PAPER_SUCCESS = dict(zip(PAPER_LEVELS, (0.20, 0.52, 0.65, 0.64, 0.59, 0.62), strict=True))
@@ -52,132 +45,18 @@ def load(path: str) -> tuple[TrainConfig, dict]:
     the path when it is not a torchpark checkpoint."""
     checkpoint = load_checkpoint(path)
     try:
-        merged = OmegaConf.merge(OmegaConf.structured(TrainConfig), checkpoint["config"])
+        merged = OmegaConf.merge(OmegaConf.structured(TrainConfig),
+                                 upgrade_saved(checkpoint["config"]))
         return OmegaConf.to_object(merged), checkpoint
     except OmegaConfBaseException as err:
         raise ValueError(f"checkpoint {str(path)!r} has an invalid config: "
                          f"{str(err).splitlines()[0]}") from None
 
 
-def make_eval_env(cfg: TrainConfig, checkpoint: dict, occupancy: float, num_envs: int,
-                  seed: int) -> TransformedEnv:
-    """``num_envs`` lots at ``occupancy`` with the paper's success test, feeding the policy
-    the checkpoint's (frozen) normalisation."""
-    base = ParkingEnv(num_envs, device=cfg.env.device, seed=seed,
-                      config=parking_config(cfg, training=False))
-    base.occupancy = occupancy
-    inputs = policy_input(cfg)
-    env = TransformedEnv(base, Compose(*inputs))
-    norm = inputs[-1]
-    norm.load_state_dict(checkpoint["obs_norm"])
-    norm.freeze()
-    return env
-
-
-# Failure modes: a collision at |v| <= GRAZING_SPEED is "grazing" (the car crept into an
-# obstacle); a timeout whose rear axle moved less than FREEZE_DISTANCE over its last
-# FREEZE_STEPS steps is "freezing" (the car stopped short of the goal).
-GRAZING_SPEED = 1.0  # m/s
-FREEZE_DISTANCE = 1.0  # m
-FREEZE_STEPS = 100
-
-
-@dataclass
-class Episodes:
-    """The first episode of each of N lots. Bool/float tensors (N,) unless stated.
-
-    poses: (T + 1, N, 3) rear-axle poses after each env step from the reset on (rows repeat
-    their last pose after their end); final: (N, 7) the last observation's [dx, dy, cos psi,
-    sin psi, v, cos alpha, sin alpha]; length: env steps taken (an index into ``poses``);
-    steps: steps of dt taken (``repeat`` per env step when the env holds its actions);
-    braked: the emergency brake stopped or steered (``steer_clear``) at least one of the
-    episode's steps of dt (each one a collision in the paper's env, which has no brake; with
-    the docking layer, the law's count too); docked: the docking layer (when on) had taken
-    over by the episode's end.
-    """
-
-    success: torch.Tensor
-    collision: torch.Tensor
-    timeout: torch.Tensor
-    length: torch.Tensor
-    final: torch.Tensor
-    poses: torch.Tensor
-    goal_slot: torch.Tensor
-    steps: torch.Tensor
-    braked: torch.Tensor
-    docked: torch.Tensor
-    repeat: int = 1
-
-    @property
-    def position_error(self) -> torch.Tensor:
-        """Distance from the rear axle to its goal at the end, m."""
-        return torch.hypot(self.final[:, 0], self.final[:, 1])
-
-    @property
-    def heading_error(self) -> torch.Tensor:
-        """|wrap(alpha - psi)| at the end, degrees."""
-        goal = goal_in_vehicle_frame(self.final)
-        return torch.atan2(goal[:, 3], goal[:, 2]).abs() * (180.0 / math.pi)
-
-    @property
-    def grazing(self) -> torch.Tensor:
-        return self.collision & (self.final[:, 4].abs() <= GRAZING_SPEED)
-
-    @property
-    def freezing(self) -> torch.Tensor:
-        end = self.length.long()
-        rows = torch.arange(end.shape[0])
-        before = self.poses[(end - FREEZE_STEPS // self.repeat).clamp(min=0), rows, :2]
-        moved = (self.poses[end, rows, :2] - before).norm(dim=-1)
-        return self.timeout & (moved < FREEZE_DISTANCE)
-
-
-def run_episodes(actor, env: TransformedEnv, max_steps: int, desc: str | None = None
-                 ) -> Episodes:
-    """Run the deterministic policy until every lot's first episode has ended. No row is
-    reset: a row that ended steps on, unrecorded, until the last one ends. With ``desc``, a
-    progress bar of the episodes ended so far, so labelled."""
-    base = env.base_env
-    n = base.num_envs
-    ended = torch.zeros(n, dtype=torch.bool)
-    final = torch.zeros(n, 7)
-    outcome = {key: torch.zeros(n, dtype=torch.bool)
-               for key in ("success", "collision", "truncated")}
-    length = torch.zeros(n)
-    steps = torch.zeros(n)
-    braked = torch.zeros(n, dtype=torch.bool)
-    docked = torch.zeros(n, dtype=torch.bool)
-    td = env.reset()
-    poses = [base.state.pose.cpu()]
-    bar = tqdm(total=n, desc=desc, unit="episode", disable=desc is None, leave=False)
-    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        for step in range(1, max_steps + 1):
-            td = env.step(actor(td))
-            nxt = td["next"]
-            first = nxt["done"][:, 0].cpu() & ~ended
-            final[first] = nxt["observation"][:, :7].cpu()[first]
-            for key in outcome:
-                outcome[key] |= first & nxt[key][:, 0].cpu()
-            length[first] = step
-            docked[first] = base.state.docking.cpu()[first]
-            braked[first] = base.state.brakes.cpu()[first] > 0
-            steps[first] = base.state.steps.cpu()[first].float()
-            poses.append(torch.where(ended[:, None], poses[-1], base.state.pose.cpu()))
-            ended |= first
-            bar.update(int(first.sum()))
-            if bool(ended.all()):
-                break
-            td = step_mdp(td)
-    bar.close()
-    return Episodes(outcome["success"], outcome["collision"], outcome["truncated"], length,
-                    final, torch.stack(poses), base.state.goal_slot.cpu(), steps, braked,
-                    docked, base.config.action_repeat)
-
-
 def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
                    episodes: int, seed: int) -> dict[str, float]:
     """One episode in each of ``episodes`` lots at ``occupancy``: the row of the table."""
-    env = make_eval_env(cfg, checkpoint, occupancy, episodes, seed)
+    env = make_eval_env(cfg, checkpoint["obs_norm"], occupancy, episodes, seed)
     run = run_episodes(actor, env, cfg.env.max_steps, desc=f"occupancy {occupancy:.0%}")
     position, heading = run.position_error, run.heading_error
     return {
@@ -198,15 +77,6 @@ def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
     }
 
 
-def make_policy(cfg: TrainConfig, checkpoint: dict) -> ProbabilisticActor:
-    """The checkpoint's actor (it reads ``NORMALISED``, see :func:`make_eval_env`)."""
-    probe = TransformedEnv(ParkingEnv(1, device=cfg.env.device), Compose(*policy_input(cfg)))
-    actor, _ = make_ppo_models(probe.observation_spec[NORMALISED].shape[-1], probe.action_spec,
-                               cfg.model)
-    actor.load_state_dict(checkpoint["actor"])
-    return actor.to(cfg.env.device)
-
-
 def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
              videos: Path | None = None, video_format: str = "mp4",
              device: str | None = None) -> list[dict[str, float]]:
@@ -219,12 +89,12 @@ def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
         cfg.env.device = device
     check_device(cfg.env.device, "the evaluation's device (the training's unless --device)")
     checkpoint = tree_map_only(torch.Tensor, lambda t: t.to(cfg.env.device), checkpoint)
-    actor = make_policy(cfg, checkpoint)
+    actor = make_policy(cfg, checkpoint["actor"])
     rows = []
     for level in levels:
         rows.append(evaluate_level(actor, checkpoint, cfg, level, episodes, seed))
         if videos is not None:
-            env = make_eval_env(cfg, checkpoint, level, 1, seed)
+            env = make_eval_env(cfg, checkpoint["obs_norm"], level, 1, seed)
             with set_exploration_type(ExplorationType.DETERMINISTIC):
                 record_video(env, actor, videos / f"rollout_occ{round(100 * level)}.{video_format}")
     return rows

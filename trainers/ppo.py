@@ -17,91 +17,18 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 from torchrl.collectors import Collector
-from torchrl.envs import (
-    CatTensors,
-    Compose,
-    DTypeCastTransform,
-    InitTracker,
-    RewardScaling,
-    RewardSum,
-    StepCounter,
-    Transform,
-    TransformedEnv,
-    VecNormV2,
-)
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 from torchrl.record.loggers import TensorboardLogger
 from tqdm import tqdm
 
-from torchpark import (
-    OccupancyCurriculum,
-    ParkingEnv,
-    RewardConfig,
-    SuccessCurriculum,
-    VehicleConfig,
-)
-from torchpark.actions import PowerActionMap
-from torchpark.features import GoalFrameFeatures
+from torchpark import OccupancyCurriculum
 from trainers.checkpoint import RESUME_KEYS, load_checkpoint
-from trainers.config import TrainConfig, load_config, parking_config
-from trainers.models import NORMALISED, make_ppo_models
+from trainers.config import TrainConfig, load_config, upgrade_saved
+from trainers.utils import NORMALISED, make_env, make_ppo_models
 
 # Config sections a checkpoint must share with the run that resumes it.
-_MODEL_SECTIONS = ("env", "model", "curriculum")
-
-
-def make_env(cfg: TrainConfig) -> TransformedEnv:
-    """The training env: ParkingEnv, episode statistics, the curriculum, observation norm
-    (written to ``NORMALISED``)."""
-    base = ParkingEnv(cfg.env.num_envs, device=cfg.env.device, seed=cfg.seed,
-                      config=parking_config(cfg, training=True),
-                      compile_step=cfg.env.compile_step)
-    return TransformedEnv(base, Compose(
-        InitTracker(), StepCounter(), RewardSum(),
-        OccupancyCurriculum(cfg.curriculum.levels, cfg.curriculum.frames_per_level),
-        *success_curriculum(cfg),
-        # After RewardSum: the logged episode reward stays in the paper's units.
-        RewardScaling(loc=0.0, scale=cfg.loss.reward_scale),
-        *policy_input(cfg),
-    ))
-
-
-def success_curriculum(cfg: TrainConfig) -> list[Transform]:
-    """The success-threshold curriculum, when ``curriculum.success_start`` asks for one."""
-    c = cfg.curriculum
-    if c.success_start is None:
-        return []
-    return [SuccessCurriculum(c.success_start, RewardConfig().success_threshold,
-                              c.success_factor, c.success_target, c.success_window)]
-
-
-def policy_input(cfg: TrainConfig) -> list[Transform]:
-    """The transforms between the env and the networks: the optional action map, then from
-    the raw observation (with the optional goal features and brake flag) to the networks'
-    input ``NORMALISED`` (last).
-
-    Normalised into its own key: the networks read it, while the raw observation stays in the
-    data for evaluation and analysis (final position and heading errors). reduce_batch_dims:
-    one set of statistics over all envs (VecNormV2's default keeps one per env).
-    """
-    source = ["observation"]
-    transforms: list[Transform] = []
-    if cfg.env.action_exponents is not None:
-        vehicle = VehicleConfig()
-        transforms.append(PowerActionMap([vehicle.max_speed, vehicle.max_steer],
-                                         cfg.env.action_exponents))
-    if cfg.env.goal_features:
-        transforms.append(GoalFrameFeatures("observation", "observation_policy"))
-        source = ["observation_policy"]
-    if cfg.env.observe_brake:
-        transforms += [DTypeCastTransform(torch.bool, torch.float32, in_keys=["braked"],
-                                          out_keys=["braked_input"]),
-                       CatTensors([*source, "braked_input"], "observation_policy",
-                                  del_keys=False, sort=False)]
-        source = ["observation_policy"]
-    return [*transforms, VecNormV2(in_keys=source, out_keys=[NORMALISED],
-                                   reduce_batch_dims=True)]
+_MODEL_SECTIONS = ("env", "agent", "train", "model", "curriculum")
 
 
 def episode_stats(batch: TensorDict, repeat: int = 1) -> dict[str, float]:
@@ -156,7 +83,7 @@ def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) 
     check_log_dir(run_dir, resume, overwrite)
     checkpoint = load_checkpoint(resume, cfg.env.device, RESUME_KEYS) if resume else None
     if checkpoint is not None:
-        saved = checkpoint["config"]
+        saved = upgrade_saved(checkpoint["config"])
         for section in _MODEL_SECTIONS:
             now = dataclasses.asdict(getattr(cfg, section))
             old = saved.get(section, {})
@@ -176,8 +103,8 @@ def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) 
     actor, critic = actor.to(device), critic.to(device)
     loss_module = ClipPPOLoss(
         actor, critic, clip_epsilon=cfg.loss.clip_epsilon,
-        entropy_bonus=cfg.loss.entropy_coeff > 0, entropy_coeff=cfg.loss.entropy_coeff,
-        critic_coeff=cfg.loss.critic_coeff, loss_critic_type="l2", normalize_advantage=True,
+        entropy_bonus=cfg.loss.entropy_coef > 0, entropy_coeff=cfg.loss.entropy_coef,
+        critic_coeff=cfg.loss.critic_coef, loss_critic_type="l2", normalize_advantage=True,
     )
     advantage = GAE(gamma=cfg.loss.gamma, lmbda=cfg.loss.gae_lambda, value_network=critic,
                     average_gae=False)
@@ -190,7 +117,7 @@ def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) 
         env.load_state_dict(checkpoint["env"])
         frames = checkpoint["frames"]
     remaining = cfg.collector.total_frames - frames
-    repeat = cfg.env.action_repeat  # frames per env step
+    repeat = cfg.agent.action_repeat  # frames per env step
     if remaining < cfg.collector.frames_per_batch:
         raise ValueError(f"collector.total_frames={cfg.collector.total_frames} leaves less than "
                          f"one batch after the checkpoint's {frames} frames")
@@ -233,7 +160,7 @@ def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) 
                 if "loss_entropy" in losses.keys():
                     total = total + losses["loss_entropy"]
                 total.backward()
-                torch.nn.utils.clip_grad_norm_(loss_module.parameters(), cfg.loss.max_grad_norm)
+                torch.nn.utils.clip_grad_norm_(loss_module.parameters(), cfg.optim.max_grad_norm)
                 optim.step()
                 optim.zero_grad()
         collector.update_policy_weights_()

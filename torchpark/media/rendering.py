@@ -1,9 +1,8 @@
-"""Pictures of lots: one RGB frame per env (walls, slot lines, parked cars, the goal slot, the
+"""Pictures of lots: one RGB picture per env (walls, slot lines, parked cars, the goal slot, the
 ego car with its heading, the LIDAR rays and their hits), and grids of several.
 
 Drawn with Pillow's ``ImageDraw`` (polygons and lines in C). The static part (asphalt, walls,
-slot lines) is drawn once per renderer; a frame copies it and draws the per-env part, so a
-frame costs well under a millisecond at the default scale (``benchmarks/rendering.py``).
+slot lines) is drawn once per renderer; a picture copies it and draws the per-env part.
 """
 
 from __future__ import annotations
@@ -15,10 +14,12 @@ import torch
 from PIL import Image, ImageDraw
 
 from torchpark.config import ParkingConfig
-from torchpark.geometry import box_corners
-from torchpark.lidar import ray_angles
-from torchpark.lot import LotLayout
-from torchpark.vehicle import vehicle_boxes
+from torchpark.sim.geometry import box_corners
+from torchpark.sim.layout import LotLayout
+from torchpark.sim.lidar import ray_angles
+from torchpark.sim.observation import NAV_DIM
+from torchpark.sim.step import ParkingState
+from torchpark.sim.vehicle import vehicle_boxes
 
 ASPHALT = (52, 54, 60)
 WALL = (150, 150, 150)
@@ -32,12 +33,12 @@ HIT = (255, 60, 60)
 
 
 class LotRenderer:
-    """Draws frames of one :class:`LotLayout` at ``pixels_per_metre``.
+    """Draws pictures of one :class:`LotLayout` at ``pixels_per_metre``.
 
     Args:
         layout: the lot geometry (``ParkingEnv.layout``).
         config: the env's :class:`ParkingConfig` (vehicle size, LIDAR range and rays).
-        pixels_per_metre: image scale; the frame spans the lot and its walls.
+        pixels_per_metre: image scale; the picture spans the lot and its walls.
         lidar: draw the rays and their hits.
     """
 
@@ -50,6 +51,7 @@ class LotRenderer:
         self.lidar = lidar
         self.border = config.lot.wall_thickness
         self.world_height = layout.height
+        self.num_slots = layout.num_slots
         self.size = (math.ceil((layout.width + 2 * self.border) * self.scale),
                      math.ceil((layout.height + 2 * self.border) * self.scale))
         self._slots = self._pixels(box_corners(layout.slots.cpu()).numpy())  # (S, 4, 2)
@@ -65,7 +67,7 @@ class LotRenderer:
 
     @property
     def shape(self) -> tuple[int, int, int]:
-        """(H, W, 3) of every frame."""
+        """(H, W, 3) of every picture."""
         return self.size[1], self.size[0], 3
 
     def _pixels(self, xy: np.ndarray) -> np.ndarray:
@@ -74,7 +76,7 @@ class LotRenderer:
         py = (self.world_height + self.border - xy[..., 1]) * self.scale
         return np.stack((px, py), axis=-1)
 
-    def frame(self, parked: np.ndarray, goal_slot: int, pose: np.ndarray,
+    def picture(self, parked: np.ndarray, goal_slot: int, pose: np.ndarray,
               lidar: np.ndarray | None = None) -> np.ndarray:
         """One env's picture, (H, W, 3) uint8.
 
@@ -112,24 +114,39 @@ class LotRenderer:
         return np.asarray(image)
 
 
-def frame_grid(frames: list[np.ndarray] | np.ndarray, columns: int | None = None,
-               gap: int = 4) -> np.ndarray:
-    """Tile equal-sized (H, W, 3) frames into one image, row by row, ``gap`` pixels apart
-    (white). ``columns`` defaults to ceil(sqrt(len(frames)))."""
-    frames = list(frames)
-    if not frames:
-        raise ValueError("frames must hold at least one frame, got none")
-    shape = frames[0].shape
-    if any(f.shape != shape for f in frames):
-        raise ValueError(f"frames must all have one shape, got {sorted({f.shape for f in frames})}")
-    columns = columns or math.ceil(math.sqrt(len(frames)))
+def picture_grid(pictures: list[np.ndarray] | np.ndarray, columns: int | None = None,
+                 gap: int = 4) -> np.ndarray:
+    """Tile equal-sized (H, W, 3) pictures into one image, row by row, ``gap`` pixels apart
+    (white). ``columns`` defaults to ceil(sqrt(len(pictures)))."""
+    pictures = list(pictures)
+    if not pictures:
+        raise ValueError("pictures must hold at least one picture, got none")
+    shape = pictures[0].shape
+    if any(f.shape != shape for f in pictures):
+        shapes = sorted({f.shape for f in pictures})
+        raise ValueError(f"pictures must all have one shape, got {shapes}")
+    columns = columns or math.ceil(math.sqrt(len(pictures)))
     if columns < 1:
         raise ValueError(f"columns must be >= 1, got {columns}")
-    rows = math.ceil(len(frames) / columns)
+    rows = math.ceil(len(pictures) / columns)
     h, w = shape[:2]
     grid = np.full((rows * h + (rows - 1) * gap, columns * w + (columns - 1) * gap, 3), 255,
                    dtype=np.uint8)
-    for i, f in enumerate(frames):
+    for i, f in enumerate(pictures):
         r, c = divmod(i, columns)
         grid[r * (h + gap): r * (h + gap) + h, c * (w + gap): c * (w + gap) + w] = f
     return grid
+
+
+def picture_envs(renderer: LotRenderer, state: ParkingState, observation: torch.Tensor,
+                 rows: list[int], columns: int | None = None) -> np.ndarray:
+    """Pictures of the lots of ``rows`` of a batched state (``observation`` (N, D): the
+    LIDAR is drawn from it): one (H, W, 3) uint8 picture for one row, else a grid."""
+    index = torch.tensor(rows, device=state.pose.device)
+    s = renderer.num_slots
+    parked = (state.present[index, :s] > 0.5).cpu().numpy()
+    goal = state.goal_slot[index].cpu().numpy()
+    pose = state.pose[index].cpu().numpy()
+    lidar = observation[index, NAV_DIM:].cpu().numpy()
+    pictures = [renderer.picture(*row) for row in zip(parked, goal, pose, lidar, strict=True)]
+    return pictures[0] if len(pictures) == 1 else picture_grid(pictures, columns)

@@ -1,4 +1,4 @@
-"""Pictures: the frame shows what the state holds, grids tile frames, bad indices are errors."""
+"""Pictures: the picture shows what the state holds, grids tile pictures, bad indices are errors."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import pytest
 import torch
 
 from torchpark import ParkingEnv
-from torchpark.rendering import EGO, GOAL, PARKED, LotRenderer, frame_grid
+from torchpark.media.rendering import EGO, GOAL, PARKED, LotRenderer, picture_grid
 
 
-def colour_count(frame: np.ndarray, colour: tuple[int, int, int]) -> int:
-    return int((frame == np.array(colour, np.uint8)).all(-1).sum())
+def colour_count(picture: np.ndarray, colour: tuple[int, int, int]) -> int:
+    return int((picture == np.array(colour, np.uint8)).all(-1).sum())
 
 
 @pytest.fixture(scope="module")
@@ -23,20 +23,20 @@ def env() -> ParkingEnv:
 
 
 def test_frame_is_rgb_uint8_of_the_lot(env):
-    frame = env.render(1)
+    picture = env.render(1)
     renderer = LotRenderer(env.layout, env.config)
-    assert frame.shape == renderer.shape and frame.dtype == np.uint8
+    assert picture.shape == renderer.shape and picture.dtype == np.uint8
     # 10 px/m: the lot and its 1 m walls, 47.3 m x 37.1 m.
-    assert frame.shape == (372, 473, 3)
+    assert picture.shape == (372, 473, 3)
 
 
 def test_frame_draws_goal_cars_and_ego(env):
     renderer = LotRenderer(env.layout, env.config, lidar=False)
     s = env.layout.num_slots
     pose = env.state.pose[0].numpy()
-    empty = renderer.frame(np.zeros(s, bool), 0, pose)
-    full = renderer.frame(np.arange(s) != 0, 0, pose)
-    other_goal = renderer.frame(np.zeros(s, bool), 5, pose)
+    empty = renderer.picture(np.zeros(s, bool), 0, pose)
+    full = renderer.picture(np.arange(s) != 0, 0, pose)
+    other_goal = renderer.picture(np.zeros(s, bool), 5, pose)
     car_px = colour_count(full, PARKED)
     assert colour_count(empty, PARKED) == 0
     # 37 cars of 2 m x 5 m at 100 px/m^2 (edge pixels included), less what the ego covers.
@@ -49,8 +49,8 @@ def test_frame_draws_goal_cars_and_ego(env):
 def test_ego_moves_with_the_pose(env):
     renderer = LotRenderer(env.layout, env.config, lidar=False)
     parked = np.zeros(env.layout.num_slots, bool)
-    a = renderer.frame(parked, 0, np.array([20.0, 15.0, 0.0]))
-    b = renderer.frame(parked, 0, np.array([25.0, 15.0, 0.0]))
+    a = renderer.picture(parked, 0, np.array([20.0, 15.0, 0.0]))
+    b = renderer.picture(parked, 0, np.array([25.0, 15.0, 0.0]))
     cols_a = np.flatnonzero((a == EGO).all(-1).any(0))
     cols_b = np.flatnonzero((b == EGO).all(-1).any(0))
     assert cols_b.mean() - cols_a.mean() == pytest.approx(50, abs=1)  # 5 m at 10 px/m
@@ -80,4 +80,4 @@ def test_bad_grid_input_is_an_error(env):
     with pytest.raises(IndexError, match="indices"):
         env.render_grid([0, 7])
     with pytest.raises(ValueError, match="one shape"):
-        frame_grid([np.zeros((2, 2, 3), np.uint8), np.zeros((3, 2, 3), np.uint8)])
+        picture_grid([np.zeros((2, 2, 3), np.uint8), np.zeros((3, 2, 3), np.uint8)])

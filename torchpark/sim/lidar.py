@@ -7,7 +7,7 @@ import math
 import torch
 from torch import Tensor
 
-from torchpark.geometry import BoxFrame, slab_interval
+from torchpark.sim.geometry import OrientedBoxes, slab_interval
 
 
 def ray_angles(n_rays: int) -> Tensor:
@@ -32,11 +32,11 @@ def _num_lines(n_rays: int) -> int:
 
 
 def lidar_scan(x: Tensor, y: Tensor, cos_psi: Tensor, sin_psi: Tensor, rotation: Tensor,
-               obstacles: BoxFrame, present: Tensor, n_rays: int, max_range: float) -> Tensor:
+               obstacles: OrientedBoxes, present: Tensor, n_rays: int, max_range: float) -> Tensor:
     """Distances along n_rays rays from (x, y) at psi + 2 pi k / n_rays to the nearest present box.
 
     x, y: (N,) ray origin, metres; cos_psi, sin_psi: (N,) heading; rotation: from
-    :func:`line_rotation`; obstacles: frame with fields (M,); present: (N, M) float32, 1 for
+    :func:`line_rotation`; obstacles: OrientedBoxes with fields (M,); present: (N, M) float32, 1 for
     the boxes that exist in each env, 0 for the others. Returns (N, n_rays) metres in
     [0, max_range]: 0 when the origin is inside a box, max_range when nothing is hit in range.
 

@@ -6,7 +6,7 @@ import torch
 from torch import Tensor
 
 from torchpark.config import RewardConfig
-from torchpark.geometry import wrap_angle
+from torchpark.sim.geometry import wrap_angle
 
 
 def parking_cost(dx: Tensor, dy: Tensor, psi: Tensor, alpha: Tensor, v: Tensor,
@@ -25,14 +25,12 @@ def is_success(cost: Tensor, threshold: Tensor | float) -> Tensor:
     return cost < threshold
 
 
-def parking_reward(cost: Tensor, collision: Tensor, success: Tensor, braked: Tensor,
+def parking_reward(cost: Tensor, collision: Tensor, success: Tensor,
                    cfg: RewardConfig) -> Tensor:
-    """r = (1 - cbrt(C)) + collision_penalty [collision] + success_bonus [success]
-    + brake_penalty [braked], [...] (the last term is not the paper's: 0 by default)."""
+    """r = (1 - cbrt(C)) + collision_penalty [collision] + success_bonus [success], [...]."""
     shaped = 1.0 - torch.pow(cost, 1.0 / 3.0)
     return (
         shaped
         + torch.where(collision, cfg.collision_penalty, 0.0)
         + torch.where(success, cfg.success_bonus, 0.0)
-        + torch.where(braked, cfg.brake_penalty, 0.0)
     )

@@ -31,7 +31,7 @@ def wrap_angle(angle: Tensor) -> Tensor:
     return torch.where((angle > -math.pi) & (angle <= math.pi), angle, wrapped)
 
 
-class BoxFrame(NamedTuple):
+class OrientedBoxes(NamedTuple):
     """A box as separate component tensors, so constant boxes are prepared once.
 
     Every field is [...]: centre (cx, cy) in metres; cos and sin of the heading; half_length
@@ -48,10 +48,10 @@ class BoxFrame(NamedTuple):
     half_width: Tensor
 
 
-def box_frame(boxes: Tensor) -> BoxFrame:
-    """Split boxes [..., 5] into a :class:`BoxFrame` (one cos and sin per box)."""
+def oriented_boxes(boxes: Tensor) -> OrientedBoxes:
+    """Split boxes [..., 5] into a :class:`OrientedBoxes` (one cos and sin per box)."""
     heading = boxes[..., 2]
-    return BoxFrame(
+    return OrientedBoxes(
         boxes[..., 0], boxes[..., 1], torch.cos(heading), torch.sin(heading),
         boxes[..., 3], boxes[..., 4],
     )
@@ -63,7 +63,7 @@ def box_corners(boxes: Tensor) -> Tensor:
     boxes: [..., 5]. Returns [..., 4, 2] in metres, in the order front-right, front-left,
     rear-left, rear-right, where front is +u and left is +n.
     """
-    f = box_frame(boxes)
+    f = oriented_boxes(boxes)
     centre = boxes[..., :2]
     hu = torch.stack((f.cos, f.sin), dim=-1) * f.half_length[..., None]
     hn = torch.stack((-f.sin, f.cos), dim=-1) * f.half_width[..., None]
@@ -77,10 +77,10 @@ def boxes_overlap(a: Tensor, b: Tensor) -> Tensor:
     a, b: [..., 5], broadcast against each other. Returns bool [...]: True when the closed boxes
     share at least one point.
     """
-    return frames_separation(box_frame(a), box_frame(b)) <= 0.0
+    return separation(oriented_boxes(a), oriented_boxes(b)) <= 0.0
 
 
-def frames_separation(a: BoxFrame, b: BoxFrame) -> Tensor:
+def separation(a: OrientedBoxes, b: OrientedBoxes) -> Tensor:
     """Largest separating-axis gap between boxes, metres [...]; <= 0 means they overlap or touch.
 
     The candidate axes are the two face normals of each box. On each, the gap is the distance
@@ -111,7 +111,7 @@ def ray_box_distance(origins: Tensor, angles: Tensor, boxes: Tensor, max_range: 
     NaN or inf, also for rays parallel to an edge.
     """
     t_near, t_far = slab_interval(origins[..., 0], origins[..., 1], torch.cos(angles),
-                                  torch.sin(angles), box_frame(boxes))
+                                  torch.sin(angles), oriented_boxes(boxes))
     hit = (t_far >= t_near) & (t_far >= 0.0)
     return torch.where(hit, t_near.clamp(min=0.0), max_range).clamp(max=max_range)
 
@@ -131,17 +131,17 @@ def _slab(offset: Tensor, direction: Tensor, half: Tensor) -> tuple[Tensor, Tens
     return lo, hi
 
 
-def slab_interval(x: Tensor, y: Tensor, cos: Tensor, sin: Tensor, frame: BoxFrame
+def slab_interval(x: Tensor, y: Tensor, cos: Tensor, sin: Tensor, boxes: OrientedBoxes
                   ) -> tuple[Tensor, Tensor]:
     """Parameter interval [t_near, t_far] where the line (x, y) + t (cos, sin) is in the box.
 
     All arguments broadcast; (cos, sin) must be a unit vector, so t is in metres. The line
     meets the closed box iff t_near <= t_far. Both are finite for lines parallel to an edge.
     """
-    rx, ry = x - frame.cx, y - frame.cy
+    rx, ry = x - boxes.cx, y - boxes.cy
     # Line origin and direction in the box frame (x along u, y along n).
-    ox, oy = rx * frame.cos + ry * frame.sin, ry * frame.cos - rx * frame.sin
-    dx, dy = cos * frame.cos + sin * frame.sin, sin * frame.cos - cos * frame.sin
-    x_lo, x_hi = _slab(ox, dx, frame.half_length)
-    y_lo, y_hi = _slab(oy, dy, frame.half_width)
+    ox, oy = rx * boxes.cos + ry * boxes.sin, ry * boxes.cos - rx * boxes.sin
+    dx, dy = cos * boxes.cos + sin * boxes.sin, sin * boxes.cos - cos * boxes.sin
+    x_lo, x_hi = _slab(ox, dx, boxes.half_length)
+    y_lo, y_hi = _slab(oy, dy, boxes.half_width)
     return torch.maximum(x_lo, y_lo), torch.minimum(x_hi, y_hi)

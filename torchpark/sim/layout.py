@@ -1,4 +1,5 @@
-"""The procedural parking lot: slot geometry (built once) and per-episode draws.
+"""The parking lot's static geometry, built once per env: slots, parked-car boxes, walls, goal
+poses and a pool of valid start poses (the per-episode draws are in :mod:`torchpark.sim.episodes`).
 
 Layout (world frame, x right, y up, origin at the lot's lower-left corner), four sections:
 
@@ -10,22 +11,20 @@ Layout (world frame, x right, y up, origin at the lot's lower-left corner), four
 
 Lanes are ``lane_width`` wide: in front of every slot's mouth a ``lane_width`` x ``slot_width``
 area is free of slots and inside the lot. The lot's size follows from the slot counts (about
-45 m x 35 m with the defaults). The geometry is the same for every env; what is procedural per
-episode is the goal slot, which of the other slots hold parked cars, and the start pose.
+45 m x 35 m with the defaults). The geometry is the same for every env.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import torch
 from torch import Tensor
 
 from torchpark.config import LotConfig, VehicleConfig
-from torchpark.geometry import BoxFrame, box_frame, frames_separation, wrap_angle
-from torchpark.vehicle import vehicle_frame
+from torchpark.sim.geometry import OrientedBoxes, oriented_boxes, separation, wrap_angle
+from torchpark.sim.vehicle import vehicle_obb
 
 SECTIONS = ("upper", "left", "middle", "right")
 UPPER, LEFT, MIDDLE, RIGHT = range(4)
@@ -65,9 +64,10 @@ class LotLayout:
         return torch.cat((self.cars, self.walls))
 
     @property
-    def slots_and_walls(self) -> BoxFrame:
-        """Frame (S + 4,) of what a start pose must not touch."""
-        return BoxFrame(*(t.contiguous() for t in box_frame(torch.cat((self.slots, self.walls)))))
+    def slots_and_walls(self) -> OrientedBoxes:
+        """OrientedBoxes (S + 4,) of what a start pose must not touch."""
+        boxes = oriented_boxes(torch.cat((self.slots, self.walls)))
+        return OrientedBoxes(*(t.contiguous() for t in boxes))
 
 
 def _row(centre0: tuple[float, float], step: tuple[float, float], count: int, heading: float,
@@ -166,15 +166,15 @@ def uniform_poses(layout: LotLayout, shape: tuple[int, ...], generator: torch.Ge
     return u * scale + offset
 
 
-def start_pose_valid(poses: Tensor, blocked: BoxFrame, vehicle: VehicleConfig) -> Tensor:
+def start_pose_valid(poses: Tensor, blocked: OrientedBoxes, vehicle: VehicleConfig) -> Tensor:
     """Whether rear-axle poses [..., 3] are valid starts: bool [...].
 
-    blocked: frame with fields (B,), the slots and walls. Valid means the vehicle box touches
+    blocked: OrientedBoxes (B,), the slots and walls. Valid means the vehicle box touches
     no wall and overlaps no slot: so it touches no parked car either, and cannot meet the
     success test, which needs the vehicle box inside the goal slot.
     """
-    ego = vehicle_frame(poses, vehicle)
-    return frames_separation(BoxFrame(*(t[..., None] for t in ego)), blocked).amin(-1) > 0.0
+    ego = vehicle_obb(poses, vehicle)
+    return separation(OrientedBoxes(*(t[..., None] for t in ego)), blocked).amin(-1) > 0.0
 
 
 _POOL_ROUNDS = 16  # a share of valid starts below 1 / 64 of the lot is refused
@@ -202,95 +202,3 @@ def _rejection_sample_pool(layout: LotLayout, vehicle: VehicleConfig, size: int,
             f"fewer than LotConfig.start_pool_size={size} valid starts; the car does not fit "
             f"the lot's lanes (LotConfig.lane_width)")
     return torch.cat(found)[:size]
-
-
-def draw_goals_and_cars(num_envs: int, num_slots: int, occupancy: float,
-                        generator: torch.Generator, device: torch.device
-                        ) -> tuple[Tensor, Tensor]:
-    """Goal slot per env and which slots hold a parked car.
-
-    Returns goal (N,) int64 uniform over the slots, and occupied (N, S) bool with exactly
-    round_half_up(occupancy * (S - 1)) of the non-goal slots, drawn uniformly, set.
-    """
-    goal = torch.randint(num_slots, (num_envs,), generator=generator, device=device)
-    parked = math.floor(occupancy * (num_slots - 1) + 0.5)
-    keys = torch.rand(num_envs, num_slots, generator=generator, device=device)
-    # The goal gets the largest key, so it is never among the `parked` smallest.
-    keys = keys.scatter(1, goal[:, None], 2.0)
-    rank = keys.argsort(dim=1).argsort(dim=1)
-    return goal, rank < parked
-
-
-class StartDraw(NamedTuple):
-    """Random inputs of :func:`choose_start` for N envs: ``uniform`` (N, K, 3) poses uniform
-    over the lot, ``fallback`` (N, 3) one pose from the pre-drawn valid pool, ``near`` (N, J, 3)
-    poses near each env's goal and ``use_near`` (N,) bool, whether to prefer them (J = 0 and
-    all False unless ``LotConfig.near_goal_starts`` > 0)."""
-
-    uniform: Tensor
-    fallback: Tensor
-    near: Tensor
-    use_near: Tensor
-
-
-def near_goal_poses(goal: Tensor, count: int, lot: LotConfig, generator: torch.Generator
-                    ) -> Tensor:
-    """``count`` rear-axle poses (N, count, 3) near each goal pose (N, 3): up to
-    ``lot.near_goal_reach`` m back along the slot axis, up to ``lot.near_goal_lateral`` m to
-    either side and up to ``lot.near_goal_heading`` rad off the slot heading, uniformly."""
-    u = torch.rand(goal.shape[0], count, 3, generator=generator, device=goal.device)
-    back = u[..., 0] * lot.near_goal_reach
-    side = (2.0 * u[..., 1] - 1.0) * lot.near_goal_lateral
-    turn = (2.0 * u[..., 2] - 1.0) * lot.near_goal_heading
-    gx, gy, alpha = (t[:, None] for t in goal.unbind(-1))
-    c, s = torch.cos(alpha), torch.sin(alpha)
-    return torch.stack((gx - back * c - side * s, gy - back * s + side * c,
-                        wrap_angle(alpha + turn)), dim=-1)
-
-
-def draw_starts(goal: Tensor, layout: LotLayout, lot: LotConfig, generator: torch.Generator
-                ) -> StartDraw:
-    """The random draws of one reset's start poses for goal poses (N, 3)."""
-    n, device = goal.shape[0], goal.device
-    pick = torch.randint(layout.start_pool.shape[0], (n,), generator=generator, device=device)
-    uniform = uniform_poses(layout, (n, lot.start_candidates), generator)
-    if lot.near_goal_starts > 0:
-        near = near_goal_poses(goal, lot.near_goal_candidates, lot, generator)
-        use_near = torch.rand(n, generator=generator, device=device) < lot.near_goal_starts
-    else:
-        near = goal.new_zeros(n, 0, 3)
-        use_near = torch.zeros(n, dtype=torch.bool, device=device)
-    return StartDraw(uniform, layout.start_pool[pick], near, use_near)
-
-
-def _first_valid(candidates: Tensor, valid: Tensor) -> tuple[Tensor, Tensor]:
-    """Each row's first valid candidate (N, 3) of (N, K, 3) and whether it has one (N, 1)."""
-    k = candidates.shape[1]
-    # Index of the first valid candidate (k - 1 when none is). A masked min rather than
-    # argmax: inductor's vectorised argmax over a uint8 mask returned out-of-range indices
-    # (torch 2.13, CPU).
-    index = torch.arange(k, device=candidates.device)
-    first = torch.where(valid, index, k - 1).amin(dim=1)
-    chosen = candidates.gather(1, first[:, None, None].expand(-1, 1, 3))[:, 0]
-    return chosen, valid.any(dim=1, keepdim=True)
-
-
-def choose_start(draw: StartDraw, blocked: BoxFrame, near_free: Tensor,
-                 vehicle: VehicleConfig) -> Tensor:
-    """Start poses (N, 3): where ``draw.use_near`` is set and a near-goal pose is free
-    (``near_free`` (N, J) bool, from the caller, who knows the parked cars), the first such;
-    else each env's first valid uniform candidate, else its fallback.
-
-    The fallback comes from the pool of valid poses, so the result is always valid; the work
-    is bounded by N x (K + J) x B box tests. Conditioned on one uniform candidate being valid,
-    the uniform pose is uniform over the valid poses.
-    """
-    start = draw.fallback
-    if draw.uniform.shape[1] > 0:
-        chosen, found = _first_valid(draw.uniform, start_pose_valid(draw.uniform, blocked,
-                                                                    vehicle))
-        start = torch.where(found, chosen, start)
-    if draw.near.shape[1] > 0:
-        chosen, found = _first_valid(draw.near, near_free)
-        start = torch.where(found & draw.use_near[:, None], chosen, start)
-    return start

@@ -9,7 +9,7 @@ import torch
 from tensordict.nn import TensorDictModule
 
 from torchpark import ParkingEnv
-from torchpark.recording import record_video, rollout_frames, write_video
+from torchpark.media.recording import record_video, rollout_frames, write_video
 
 
 def forward(observation: torch.Tensor) -> torch.Tensor:

@@ -6,7 +6,7 @@ import torch
 from torch import Tensor
 
 from torchpark.config import VehicleConfig
-from torchpark.geometry import BoxFrame, wrap_angle
+from torchpark.sim.geometry import OrientedBoxes, wrap_angle
 
 
 def clamp_action(action: Tensor, cfg: VehicleConfig) -> tuple[Tensor, Tensor]:
@@ -31,8 +31,8 @@ def bicycle_step(pose: Tensor, v: Tensor, delta: Tensor, cfg: VehicleConfig) -> 
     return torch.stack((x, y, psi), dim=-1)
 
 
-def vehicle_frame(pose: Tensor, cfg: VehicleConfig) -> BoxFrame:
-    """Footprint of vehicles at rear-axle poses [..., 3] as a :class:`BoxFrame` with fields [...].
+def vehicle_obb(pose: Tensor, cfg: VehicleConfig) -> OrientedBoxes:
+    """Footprint of vehicles at rear-axle poses [..., 3] as :class:`OrientedBoxes` [...].
 
     The box is ``length`` x ``width``, centred ``centre_offset`` ahead of the rear axle.
     """
@@ -41,10 +41,10 @@ def vehicle_frame(pose: Tensor, cfg: VehicleConfig) -> BoxFrame:
     half_length = torch.full_like(x, cfg.length / 2.0)
     half_width = torch.full_like(x, cfg.width / 2.0)
     offset = cfg.centre_offset
-    return BoxFrame(x + offset * c, y + offset * s, c, s, half_length, half_width)
+    return OrientedBoxes(x + offset * c, y + offset * s, c, s, half_length, half_width)
 
 
 def vehicle_boxes(pose: Tensor, cfg: VehicleConfig) -> Tensor:
     """Footprint of vehicles at rear-axle poses [..., 3] as boxes [..., 5]."""
-    f = vehicle_frame(pose, cfg)
+    f = vehicle_obb(pose, cfg)
     return torch.stack((f.cx, f.cy, pose[..., 2], f.half_length, f.half_width), dim=-1)

@@ -8,7 +8,7 @@ tan(delta) = L (-k e - 2 sqrt(k) th) makes both decay, critically damped, over a
 a creep of mm/s. Farther off the axis the steering saturates and one pass is not enough:
 the layer then drives a multi-point turn, reversing when the goal is too close (or the
 emergency brake stops it) and driving in again from a run-in, each pass lining the car up
-further. ``ParkingConfig.docking`` (a :class:`~torchpark.config.DockingConfig`) turns it
+further. ``AidsConfig.docking`` (a :class:`~torchpark.aids.config.DockingConfig`) turns it
 on; it engages when the car enters the funnel around the slot's approach and drives to the
 episode's end. Off by default: the paper's agent is the policy alone.
 """
@@ -20,11 +20,12 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from torchpark.config import DockingConfig, VehicleConfig
-from torchpark.geometry import wrap_angle
+from torchpark.aids.config import DockingConfig
+from torchpark.config import VehicleConfig
+from torchpark.sim.geometry import wrap_angle
 
 
-class GoalFrameError(NamedTuple):
+class GoalError(NamedTuple):
     """The rear axle seen from its goal pose, fields [...]: ``remaining`` m left to the goal
     along the goal's heading (> 0: the goal is ahead), ``lateral`` m left of the slot axis,
     ``heading`` rad, wrap(psi - alpha) in (-pi, pi]."""
@@ -34,29 +35,29 @@ class GoalFrameError(NamedTuple):
     heading: Tensor
 
 
-def goal_frame_error(pose: Tensor, goal: Tensor) -> GoalFrameError:
+def error_from_goal(pose: Tensor, goal: Tensor) -> GoalError:
     """Errors of rear-axle poses [..., 3] (x m, y m, psi rad) from goal poses [..., 3]."""
     dx = goal[..., 0] - pose[..., 0]
     dy = goal[..., 1] - pose[..., 1]
     cos_a, sin_a = torch.cos(goal[..., 2]), torch.sin(goal[..., 2])
-    return GoalFrameError(cos_a * dx + sin_a * dy, sin_a * dx - cos_a * dy,
+    return GoalError(cos_a * dx + sin_a * dy, sin_a * dx - cos_a * dy,
                           wrap_angle(pose[..., 2] - goal[..., 2]))
 
 
-def in_funnel(error: GoalFrameError, cfg: DockingConfig) -> Tensor:
+def in_funnel(error: GoalError, cfg: DockingConfig) -> Tensor:
     """Whether the docking law takes over, bool [...]: 0 <= remaining <= reach,
     |lateral| <= lateral, |heading| <= heading."""
     return ((error.remaining >= 0.0) & (error.remaining <= cfg.reach)
             & (error.lateral.abs() <= cfg.lateral) & (error.heading.abs() <= cfg.heading))
 
 
-def is_settled(error: GoalFrameError, cfg: DockingConfig) -> Tensor:
+def is_settled(error: GoalError, cfg: DockingConfig) -> Tensor:
     """Whether the car is lined up for the final approach, bool [...]: within
     ``settled_lateral`` m and ``settled_heading`` rad of the slot axis."""
     return (error.lateral.abs() < cfg.settled_lateral) & (error.heading.abs() < cfg.settled_heading)
 
 
-def docking_action(error: GoalFrameError, reversing: Tensor, cfg: DockingConfig,
+def docking_action(error: GoalError, reversing: Tensor, cfg: DockingConfig,
                    vehicle: VehicleConfig) -> tuple[Tensor, Tensor]:
     """The law's (v m/s, delta rad), each [...], within the vehicle's limits: reversing at
     ``max_speed`` where ``reversing`` (bool [...]) is set; elsewhere forwards, at
@@ -79,9 +80,9 @@ def docking_action(error: GoalFrameError, reversing: Tensor, cfg: DockingConfig,
     return direction * speed.clamp(max=vehicle.max_speed), delta
 
 
-def docking_phase(error: GoalFrameError, docking: Tensor, reversing: Tensor, braked: Tensor,
+def docking_phase(error: GoalError, engaged: Tensor, reversing: Tensor, braked: Tensor,
                   cfg: DockingConfig) -> tuple[Tensor, Tensor]:
-    """The layer's next (docking, reversing), bool [...], from the current ones, the errors
+    """The layer's next (engaged, reversing), bool [...], from the current ones, the errors
     and whether the last step was stopped by the emergency brake (``braked``).
 
     It takes over on entering the funnel (driving forwards) and keeps the wheel. Forwards, it
@@ -89,10 +90,25 @@ def docking_phase(error: GoalFrameError, docking: Tensor, reversing: Tensor, bra
     without being settled; reversing, it turns forwards when braked or ``run_in`` m back:
     a multi-point turn whose every pass lines the car up further.
     """
-    entered = ~docking & in_funnel(error, cfg)
-    docking = docking | entered
+    entered = ~engaged & in_funnel(error, cfg)
+    engaged = engaged | entered
     forwards = ~reversing | entered
     to_reverse = braked | (error.remaining < 0.0) | (
         (error.remaining < cfg.abort) & ~is_settled(error, cfg))
     to_forwards = braked | (error.remaining >= cfg.run_in)
-    return docking, docking & torch.where(forwards, to_reverse, ~to_forwards)
+    return engaged, engaged & torch.where(forwards, to_reverse, ~to_forwards)
+
+
+def take_over(pose: Tensor, goal: Tensor, v: Tensor, delta: Tensor, engaged: Tensor,
+              reversing: Tensor, braked: Tensor, cfg: DockingConfig, vehicle: VehicleConfig
+              ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The layer applied to one step of dt: the policy's clamped (v, delta) [...] where the
+    law is not engaged, the law's where it is (it engages on entering the funnel and keeps
+    the wheel to the episode's end). pose, goal: [..., 3]; engaged, reversing: the layer's
+    state, bool [...]; braked: whether the emergency brake stopped the last step. Returns
+    (v, delta, engaged, reversing) after this step's phase update."""
+    error = error_from_goal(pose, goal)
+    engaged, reversing = docking_phase(error, engaged, reversing, braked, cfg)
+    law_v, law_delta = docking_action(error, reversing, cfg, vehicle)
+    return (torch.where(engaged, law_v, v), torch.where(engaged, law_delta, delta), engaged,
+            reversing)

@@ -13,20 +13,23 @@ from torch import Tensor
 from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
-GOAL_FEATURES = 7
+from torchpark.sim.observation import NAV_DIM
+
+GOAL_FEATURES = 7  # ex, ey, cos and sin of the heading error, three asinh scales
 
 
 def goal_in_vehicle_frame(observation: Tensor, precision: float = 0.01) -> Tensor:
-    """[..., 7 + n_rays] observation -> [..., 7] float features of the goal seen from the car.
+    """[..., NAV_DIM + n_rays] observation -> [..., GOAL_FEATURES] float features of the goal
+    seen from the car.
 
     Features: (ex, ey) goal minus rear axle in the vehicle frame (m, x forward, y left);
     cos, sin of the heading error wrap(alpha - psi); asinh(ex / precision),
     asinh(ey / precision), asinh(heading error / precision) with ``precision`` in m (and rad).
     """
-    if observation.shape[-1] < 7:
-        raise ValueError(f"observation must have >= 7 features, got shape "
+    if observation.shape[-1] < NAV_DIM:
+        raise ValueError(f"observation must have >= {NAV_DIM} features, got shape "
                          f"{tuple(observation.shape)}")
-    dx, dy, cos_psi, sin_psi, _, cos_alpha, sin_alpha = observation[..., :7].unbind(-1)
+    dx, dy, cos_psi, sin_psi, _, cos_alpha, sin_alpha = observation[..., :NAV_DIM].unbind(-1)
     ex = cos_psi * dx + sin_psi * dy
     ey = cos_psi * dy - sin_psi * dx
     cos_err = cos_alpha * cos_psi + sin_alpha * sin_psi
@@ -43,7 +46,7 @@ class GoalFrameFeatures(Transform):
 
     Args:
         in_key: the paper's observation key.
-        out_key: where the [..., obs_dim + 7] policy input goes.
+        out_key: where the [..., obs_dim + GOAL_FEATURES] policy input goes.
         precision: the length (m) and angle (rad) below which the asinh features turn linear.
     """
 

@@ -1,0 +1,109 @@
+"""The emergency brake (torchpark.aids.brake): it never lets the car collide, steers clear
+to the nearest clear angle, counts its interventions, and adds its penalty."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from torchpark import AidsConfig, BrakeConfig, ParkingConfig, ParkingEnv
+from torchpark.sim.vehicle import bicycle_step, vehicle_obb
+from torchpark.sim.world import touches_obstacle
+
+
+def test_emergency_brake_never_collides_and_holds_the_pose(device):
+    env = ParkingEnv(64, seed=2, config=ParkingConfig(occupancy=0.9),
+                     aids=AidsConfig(brake=BrakeConfig()), device=device)
+    td = env.reset()
+    plain = ParkingEnv(64, seed=2, config=ParkingConfig(occupancy=0.9), device=device)
+    plain.reset()
+    action = torch.tensor([[5.0, 0.3]], device=device).expand(64, 2)
+    for _ in range(100):
+        before = env.state.pose.clone()
+        td = env.step(td.set("action", action))["next"]
+        stopped = env.state.speed == 0
+        assert not td["collision"].any() and not td["done"].any()
+        assert torch.equal(env.state.pose[stopped], before[stopped])
+    assert stopped.all()  # full throttle ends against something everywhere
+    hits = 0
+    td = plain.reset()
+    for _ in range(100):
+        td = plain.step(td.set("action", action))["next"]
+        hits += int(td["collision"].sum())
+    assert hits > 0  # the same drive without the brake collides
+
+
+def test_steer_clear_takes_the_clear_steering_nearest_the_commanded_else_stops():
+    """Random actions in dense lots, every colliding step checked against a search over the
+    five angles: the step is taken at the clear angle nearest the commanded one, at the
+    commanded speed; with none clear the car stops; either way it counts as braked."""
+    env = ParkingEnv(64, seed=2, config=ParkingConfig(occupancy=0.9),
+                     aids=AidsConfig(brake=BrakeConfig(steer_clear=5)))
+    td = env.reset()
+    generator = torch.Generator().manual_seed(0)
+    spread = torch.linspace(-0.785, 0.785, 5)
+    limits = torch.tensor([5.0, 0.785])
+    vehicle = env.config.vehicle
+    steered = stopped = 0
+    for _ in range(60):
+        action = (torch.rand(64, 2, generator=generator) * 2 - 1) * limits
+        before, count = env.state.pose.clone(), env.aid_state.interventions.clone()
+        # Commanded angle first, then the five: (64, 6) would-be collisions.
+        deltas = torch.cat((action[:, 1:], spread.expand(64, 5)), dim=1)
+        poses = bicycle_step(before[:, None].expand(64, 6, 3), action[:, :1].expand(64, 6),
+                             deltas, vehicle)
+        hits = touches_obstacle(vehicle_obb(poses, vehicle), env.world,
+                                env.state.present[:, None])
+        td = env.step(td.set("action", action))["next"]
+        assert not td["collision"].any()
+        assert torch.equal(td["braked"][:, 0], env.aid_state.braked)
+        assert torch.equal(td["interventions"][:, 0], env.aid_state.interventions)
+        for row in range(64):
+            if not hits[row, 0]:
+                expected = bicycle_step(before[row], action[row, 0], action[row, 1], vehicle)
+                assert torch.equal(env.state.pose[row], expected)
+                assert env.aid_state.interventions[row] == count[row]
+                continue
+            assert env.aid_state.interventions[row] == count[row] + 1
+            clear = [d for d, hit in zip(spread, hits[row, 1:], strict=True) if not hit]
+            if clear:
+                nearest = min(clear, key=lambda d: abs(float(d - action[row, 1])))
+                expected = bicycle_step(before[row], action[row, 0], nearest, vehicle)
+                assert torch.allclose(env.state.pose[row], expected, atol=1e-6)
+                assert env.state.speed[row] == action[row, 0] and not env.aid_state.braked[row]
+                steered += 1
+            else:
+                assert torch.equal(env.state.pose[row], before[row])
+                assert env.state.speed[row] == 0 and env.aid_state.braked[row]
+                stopped += 1
+    assert steered > 20 and stopped > 5
+
+
+@pytest.mark.parametrize("value", [1, -1, True, 2000])
+def test_bad_steer_clear_raises(value):
+    with pytest.raises(TypeError if isinstance(value, bool) else ValueError,
+                       match=r"BrakeConfig\.steer_clear"):
+        BrakeConfig(steer_clear=value)
+
+
+def test_brake_penalty_is_added_on_braked_steps_only():
+    def drive(penalty: float) -> tuple[list[torch.Tensor], list[torch.Tensor], torch.Tensor]:
+        env = ParkingEnv(64, seed=2, config=ParkingConfig(occupancy=0.9),
+                         aids=AidsConfig(brake=BrakeConfig(penalty=penalty)))
+        td = env.reset()
+        rewards, braked = [], []
+        action = torch.tensor([[5.0, 0.3]]).expand(64, 2)
+        for _ in range(60):
+            td = env.step(td.set("action", action))["next"]
+            rewards.append(td["reward"][:, 0])
+            braked.append(env.state.speed == 0)  # full throttle: speed 0 only when braked
+            assert torch.equal(env.aid_state.braked, braked[-1])
+        return rewards, braked, env.aid_state.interventions
+
+    plain, braked, brakes = drive(0.0)
+    penalised, same, _ = drive(-3.0)
+    assert torch.equal(brakes, torch.stack(braked).sum(0))  # the episode's count
+    assert all(torch.equal(a, b) for a, b in zip(braked, same, strict=True))
+    for r0, r1, b in zip(plain, penalised, braked, strict=True):
+        assert torch.allclose(r1, r0 + torch.where(b, -3.0, 0.0))
+    assert any(b.any() for b in braked) and not all(b.all() for b in braked)

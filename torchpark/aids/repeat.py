@@ -1,0 +1,41 @@
+"""Held actions (action repeat): one env step holds the action for up to k steps of dt,
+stopping at the one that ends the episode, and returns the sum of their rewards. A wrapper
+around any step function, as Brax's ``EpisodeWrapper`` wraps its pure step."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+from torch import Tensor
+
+from torchpark.sim.step import StepResult, mux_rows
+
+StepFn = Callable[[tuple, Tensor], tuple[tuple, StepResult, Tensor]]
+MergeFn = Callable[[tuple, StepResult, tuple, StepResult], tuple[tuple, StepResult]]
+
+
+def merge_steps(state: tuple, out: StepResult, new_state: tuple, new_out: StepResult
+                ) -> tuple[tuple, StepResult]:
+    """Append one more step of dt (``new_*``, taken from ``state``) to a held action's steps
+    so far: rows already done keep their state and outputs; the others take the new ones,
+    with the rewards summed."""
+    live = ~out.done[:, 0]
+    merged = mux_rows(live, new_out, out)
+    return mux_rows(live, new_state, state), merged._replace(
+        reward=out.reward + torch.where(live[:, None], new_out.reward, 0.0))
+
+
+def hold(step: StepFn, merge: MergeFn, repeat: int) -> StepFn:
+    """``step`` with each action held for ``repeat`` steps of dt (``merge``: :func:`merge_steps`,
+    compiled or not). Returns ``step`` itself when ``repeat`` is 1."""
+    if repeat == 1:
+        return step
+
+    def held(state: tuple, action: Tensor) -> tuple[tuple, StepResult, Tensor]:
+        state, out, finite = step(state, action)
+        for _ in range(repeat - 1):
+            state, out = merge(state, out, *step(state, action)[:2])
+        return state, out, finite
+
+    return held

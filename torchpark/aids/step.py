@@ -1,0 +1,90 @@
+"""The aided step and reset: the paper's (:mod:`torchpark.sim.step`) with the configured aids
+composed around the same commit of a state. ``ParkingEnv`` uses these when it is given an
+:class:`~torchpark.aids.config.AidsConfig`, the paper's functions otherwise."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from torchpark.aids.brake import apply_brake
+from torchpark.aids.config import AidsConfig
+from torchpark.aids.docking import take_over
+from torchpark.aids.starts import NearDraw, near_start
+from torchpark.config import ParkingConfig
+from torchpark.sim.episodes import LotDraw
+from torchpark.sim.step import ParkingState, StepResult, commit, move, mux_rows, new_lots, place
+from torchpark.sim.vehicle import clamp_action
+from torchpark.sim.world import World
+
+# The aids' per-step outputs (ParkingEnv declares those of the aids it has):
+BRAKE_KEYS = ("braked", "interventions")
+DOCKING_KEYS = ("docking_engaged",)
+
+
+class AidState(NamedTuple):
+    """The aids' per-env state, fields (N,): ``braked`` bool, the brake stopped the last step
+    of dt; ``interventions`` int64, steps of dt it stopped or steered this episode;
+    ``docking_engaged`` bool, the docking law drives this episode; ``docking_reverses`` bool,
+    it is reversing."""
+
+    braked: Tensor
+    interventions: Tensor
+    docking_engaged: Tensor
+    docking_reverses: Tensor
+
+    @classmethod
+    def zeros(cls, num_envs: int, device: torch.device | str) -> AidState:
+        flag = torch.zeros(num_envs, dtype=torch.bool, device=device)
+        return cls(flag, torch.zeros(num_envs, dtype=torch.int64, device=device), flag.clone(),
+                   flag.clone())
+
+
+class AidedState(NamedTuple):
+    """The paper's state and the aids' beside it."""
+
+    sim: ParkingState
+    aids: AidState
+
+
+def aided_step(state: AidedState, action: Tensor, world: World, steer_angles: Tensor,
+               cfg: ParkingConfig, aids: AidsConfig
+               ) -> tuple[AidedState, StepResult, Tensor]:
+    """One step of dt with the aids: the docking law may replace the clamped action, the
+    brake may steer or stop the move, and the brake's penalty joins the paper's reward.
+    ``steer_angles``: the brake's (K,) angles (:func:`torchpark.aids.brake.steer_angles`).
+    Returns the new state, what the step emits, and whether every action was finite."""
+    sim, aid = state
+    v, delta = clamp_action(action, cfg.vehicle)
+    engaged, reverses = aid.docking_engaged, aid.docking_reverses
+    if aids.docking is not None:
+        v, delta, engaged, reverses = take_over(sim.pose, sim.goal, v, delta, engaged, reverses,
+                                                aid.braked, aids.docking, cfg.vehicle)
+    pose, collision = move(sim.pose, v, delta, sim.present, world, cfg)
+    braked = intervened = torch.zeros_like(collision)
+    if aids.brake is not None:
+        pose, v, braked, intervened = apply_brake(sim.pose, pose, v, delta, collision,
+                                                  sim.present, steer_angles, world, cfg)
+        collision = torch.zeros_like(collision)
+    sim, out = commit(sim, pose, v, collision, world, cfg)
+    if aids.brake is not None:
+        out = out._replace(reward=out.reward + torch.where(braked[:, None], aids.brake.penalty,
+                                                           0.0))
+    aid = AidState(braked, aid.interventions + intervened.long(), engaged, reverses)
+    return AidedState(sim, aid), out, action.isfinite().all()
+
+
+def aided_reset(state: AidedState, observation: Tensor, mask: Tensor, lots: LotDraw,
+                near: NearDraw | None, world: World, cfg: ParkingConfig
+                ) -> tuple[AidedState, Tensor]:
+    """The paper's reset with the aids' state cleared, and with ``near`` (near-goal starts)
+    preferred to the uniform start where it asks."""
+    fresh = new_lots(lots, world, cfg)
+    if near is not None:
+        fresh = fresh._replace(pose=near_start(fresh.pose, near, fresh.goal, fresh.present,
+                                               world, cfg))
+    sim, observation = place(state.sim, observation, mask, fresh, world, cfg)
+    cleared = AidState.zeros(mask.shape[0], mask.device)
+    return AidedState(sim, mux_rows(mask, cleared, state.aids)), observation

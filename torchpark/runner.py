@@ -1,0 +1,121 @@
+"""Run a policy for one episode in each of N lots and record how each ended: the
+per-episode runner behind the evaluation report, the tests and the benchmarks."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torchrl.envs import TransformedEnv
+from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+
+from torchpark.aids.features import goal_in_vehicle_frame
+from torchpark.sim.observation import NAV_DIM
+
+# Failure modes: a collision at |v| <= GRAZING_SPEED is "grazing" (the car crept into an
+# obstacle); a timeout whose rear axle moved less than FREEZE_DISTANCE over its last
+# FREEZE_STEPS steps is "freezing" (the car stopped short of the goal).
+GRAZING_SPEED = 1.0  # m/s
+FREEZE_DISTANCE = 1.0  # m
+FREEZE_STEPS = 100
+
+
+@dataclass
+class Episodes:
+    """The first episode of each of N lots. Bool/float tensors (N,) unless stated.
+
+    poses: (T + 1, N, 3) rear-axle poses after each env step from the reset on (rows repeat
+    their last pose after their end); final: (N, NAV_DIM) the last observation's [dx, dy,
+    cos psi, sin psi, v, cos alpha, sin alpha]; length: env steps taken (an index into ``poses``);
+    steps: steps of dt taken (``repeat`` per env step when the env holds its actions);
+    braked: the emergency brake stopped or steered (``steer_clear``) at least one of the
+    episode's steps of dt (each one a collision in the paper's env, which has no brake; with
+    the docking law, the law's count too); docked: the docking law (when on) had taken over
+    by the episode's end. Both False for an env without that aid.
+    """
+
+    success: torch.Tensor
+    collision: torch.Tensor
+    timeout: torch.Tensor
+    length: torch.Tensor
+    final: torch.Tensor
+    poses: torch.Tensor
+    goal_slot: torch.Tensor
+    steps: torch.Tensor
+    braked: torch.Tensor
+    docked: torch.Tensor
+    repeat: int = 1
+
+    @property
+    def position_error(self) -> torch.Tensor:
+        """Distance from the rear axle to its goal at the end, m."""
+        return torch.hypot(self.final[:, 0], self.final[:, 1])
+
+    @property
+    def heading_error(self) -> torch.Tensor:
+        """|wrap(alpha - psi)| at the end, degrees."""
+        goal = goal_in_vehicle_frame(self.final)
+        return torch.atan2(goal[:, 3], goal[:, 2]).abs() * (180.0 / math.pi)
+
+    @property
+    def grazing(self) -> torch.Tensor:
+        return self.collision & (self.final[:, 4].abs() <= GRAZING_SPEED)
+
+    @property
+    def freezing(self) -> torch.Tensor:
+        end = self.length.long()
+        rows = torch.arange(end.shape[0])
+        before = self.poses[(end - FREEZE_STEPS // self.repeat).clamp(min=0), rows, :2]
+        moved = (self.poses[end, rows, :2] - before).norm(dim=-1)
+        return self.timeout & (moved < FREEZE_DISTANCE)
+
+
+def run_episodes(actor, env: TransformedEnv, max_steps: int, desc: str | None = None
+                 ) -> Episodes:
+    """Run the deterministic policy until every lot's first episode has ended. No row is
+    reset: a row that ended steps on, unrecorded, until the last one ends. With ``desc``, a
+    progress bar of the episodes ended so far, so labelled (tqdm: ``torchpark[train]``)."""
+    base = env.base_env
+    n = base.num_envs
+    ended = torch.zeros(n, dtype=torch.bool)
+    final = torch.zeros(n, NAV_DIM)
+    outcome = {key: torch.zeros(n, dtype=torch.bool)
+               for key in ("success", "collision", "truncated")}
+    length = torch.zeros(n)
+    steps = torch.zeros(n)
+    braked = torch.zeros(n, dtype=torch.bool)
+    docked = torch.zeros(n, dtype=torch.bool)
+    td = env.reset()
+    poses = [base.state.pose.cpu()]
+    bar = None
+    if desc is not None:
+        from tqdm import tqdm
+
+        bar = tqdm(total=n, desc=desc, unit="episode", leave=False)
+    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+        for step in range(1, max_steps + 1):
+            td = env.step(actor(td))
+            nxt = td["next"]
+            first = nxt["done"][:, 0].cpu() & ~ended
+            final[first] = nxt["observation"][:, :NAV_DIM].cpu()[first]
+            for key in outcome:
+                outcome[key] |= first & nxt[key][:, 0].cpu()
+            length[first] = step
+            if "docking_engaged" in nxt.keys():
+                docked[first] = nxt["docking_engaged"][:, 0].cpu()[first]
+            if "interventions" in nxt.keys():
+                braked[first] = nxt["interventions"][:, 0].cpu()[first] > 0
+            steps[first] = base.state.steps.cpu()[first].float()
+            poses.append(torch.where(ended[:, None], poses[-1], base.state.pose.cpu()))
+            ended |= first
+            if bar is not None:
+                bar.update(int(first.sum()))
+            if bool(ended.all()):
+                break
+            td = step_mdp(td)
+    if bar is not None:
+        bar.close()
+    return Episodes(outcome["success"], outcome["collision"], outcome["truncated"], length,
+                    final, torch.stack(poses), base.state.goal_slot.cpu(), steps, braked,
+                    docked, base.action_repeat)

@@ -1,0 +1,181 @@
+"""What the PPO loop and the evaluator build, as in torchrl's recipes (``utils_mujoco.py``):
+the envs (:func:`make_env`, :func:`make_eval_env`) and the networks (:func:`make_ppo_models`).
+
+The networks are the paper's: separate tanh MLPs for actor and critic, a state-independent
+log-std (as Stable-Baselines3), and a TanhNormal policy inside the action bounds. Optionally
+(``ModelConfig.state_dependent_std``) the actor outputs its scale too, so it can act with
+less noise where precision pays (the last millimetres of parking)."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from tensordict.nn import NormalParamExtractor, TensorDictModule
+from torch import nn
+from torchrl.data import Bounded
+from torchrl.envs import (
+    CatTensors,
+    Compose,
+    DTypeCastTransform,
+    InitTracker,
+    RewardScaling,
+    RewardSum,
+    StepCounter,
+    Transform,
+    TransformedEnv,
+    VecNormV2,
+)
+from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+
+from torchpark import (
+    GoalFrameFeatures,
+    OccupancyCurriculum,
+    ParkingEnv,
+    PowerActionMap,
+    RewardConfig,
+    SuccessCurriculum,
+)
+from trainers.config import ModelConfig, TrainConfig, env_configs
+
+NORMALISED = "observation_norm"  # the normalised observation the networks read
+
+
+class StateIndependentScale(nn.Module):
+    """loc -> (loc, exp(log_std)) with one learned log-std per action dimension."""
+
+    def __init__(self, action_dim: int, init_log_std: float) -> None:
+        super().__init__()
+        self.log_std = nn.Parameter(torch.full((action_dim,), init_log_std))
+
+    def forward(self, loc: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return loc, self.log_std.exp().expand_as(loc)
+
+
+def orthogonal_init(mlp: nn.Module, output_gain: float) -> nn.Module:
+    """Stable-Baselines3's initialisation: orthogonal weights with gain sqrt(2) in the hidden
+    layers and ``output_gain`` in the last (0.01 for the policy, whose first actions are then
+    near zero; 1 for the value), zero biases."""
+    linears = [m for m in mlp.modules() if isinstance(m, nn.Linear)]
+    for i, layer in enumerate(linears):
+        nn.init.orthogonal_(layer.weight, output_gain if i == len(linears) - 1 else math.sqrt(2))
+        nn.init.zeros_(layer.bias)
+    return mlp
+
+
+def make_ppo_models(obs_dim: int, action_spec: Bounded, cfg: ModelConfig
+                    ) -> tuple[ProbabilisticActor, ValueOperator]:
+    """Actor (NORMALISED -> action, sample_log_prob) and critic (NORMALISED -> state_value)."""
+    action_dim = action_spec.shape[-1]
+    low = action_spec.space.low.reshape(-1, action_dim)[0]
+    high = action_spec.space.high.reshape(-1, action_dim)[0]
+    if cfg.state_dependent_std:
+        # scale = softplus(out + b) with b such that out = 0 gives exp(init_log_std).
+        head = NormalParamExtractor(scale_mapping=f"biased_softplus_{math.exp(cfg.init_log_std)}",
+                                    scale_lb=1e-4)
+        out_features = 2 * action_dim
+    else:
+        head = StateIndependentScale(action_dim, cfg.init_log_std)
+        out_features = action_dim
+    policy = nn.Sequential(
+        orthogonal_init(MLP(in_features=obs_dim, out_features=out_features,
+                            num_cells=list(cfg.hidden), activation_class=nn.Tanh), 0.01),
+        head,
+    )
+    actor = ProbabilisticActor(
+        TensorDictModule(policy, in_keys=[NORMALISED], out_keys=["loc", "scale"]),
+        in_keys=["loc", "scale"], spec=action_spec, distribution_class=TanhNormal,
+        distribution_kwargs={"low": low, "high": high}, return_log_prob=True,
+    )
+    critic = ValueOperator(
+        orthogonal_init(MLP(in_features=obs_dim, out_features=1, num_cells=list(cfg.hidden),
+                            activation_class=nn.Tanh), 1.0),
+        in_keys=[NORMALISED],
+    )
+    return actor, critic
+
+
+def make_base_env(cfg: TrainConfig, training: bool, num_envs: int | None = None,
+                  seed: int | None = None) -> ParkingEnv:
+    """The run's ParkingEnv: its task and aids from :func:`trainers.config.env_configs`."""
+    config, aids = env_configs(cfg, training)
+    return ParkingEnv(cfg.env.num_envs if num_envs is None else num_envs,
+                      device=cfg.env.device, seed=cfg.seed if seed is None else seed,
+                      config=config, aids=aids, compile_step=cfg.env.compile_step and training)
+
+
+def make_env(cfg: TrainConfig) -> TransformedEnv:
+    """The training env: ParkingEnv, episode statistics, the curriculum, observation norm
+    (written to ``NORMALISED``)."""
+    base = make_base_env(cfg, training=True)
+    return TransformedEnv(base, Compose(
+        InitTracker(), StepCounter(), RewardSum(),
+        OccupancyCurriculum(cfg.curriculum.levels, cfg.curriculum.frames_per_level),
+        *success_curriculum(cfg),
+        # After RewardSum: the logged episode reward stays in the paper's units.
+        RewardScaling(loc=0.0, scale=cfg.loss.reward_scale),
+        *policy_input(cfg, base),
+    ))
+
+
+def make_eval_env(cfg: TrainConfig, obs_norm: dict, occupancy: float, num_envs: int,
+                  seed: int) -> TransformedEnv:
+    """``num_envs`` lots at ``occupancy`` with the paper's starts, reward and success test and
+    the agent's own aids, feeding the policy the trained (frozen) normalisation
+    ``obs_norm`` (a checkpoint's)."""
+    base = make_base_env(cfg, training=False, num_envs=num_envs, seed=seed)
+    base.occupancy = occupancy
+    inputs = policy_input(cfg, base)
+    env = TransformedEnv(base, Compose(*inputs))
+    norm = inputs[-1]
+    norm.load_state_dict(obs_norm)
+    norm.freeze()
+    return env
+
+
+def success_curriculum(cfg: TrainConfig) -> list[Transform]:
+    """The success-threshold curriculum, when ``curriculum.success_start`` asks for one."""
+    c = cfg.curriculum
+    if c.success_start is None:
+        return []
+    return [SuccessCurriculum(c.success_start, RewardConfig().success_threshold,
+                              c.success_factor, c.success_target, c.success_window)]
+
+
+def policy_input(cfg: TrainConfig, base: ParkingEnv) -> list[Transform]:
+    """The transforms between the env and the networks: the optional action map (onto the
+    env's own action bounds), then from the raw observation (with the optional goal features
+    and brake flag) to the networks' input ``NORMALISED`` (last).
+
+    Normalised into its own key: the networks read it, while the raw observation stays in the
+    data for evaluation and analysis (final position and heading errors). reduce_batch_dims:
+    one set of statistics over all envs (VecNormV2's default keeps one per env).
+    """
+    source = ["observation"]
+    transforms: list[Transform] = []
+    agent = cfg.agent
+    if agent.action_exponents is not None:
+        high = base.action_spec.space.high.reshape(-1, base.action_spec.shape[-1])[0]
+        transforms.append(PowerActionMap(high.cpu(), agent.action_exponents))
+    if agent.goal_features:
+        transforms.append(GoalFrameFeatures("observation", "observation_policy"))
+        source = ["observation_policy"]
+    if agent.observe_brake:
+        transforms += [DTypeCastTransform(torch.bool, torch.float32, in_keys=["braked"],
+                                          out_keys=["braked_input"]),
+                       CatTensors([*source, "braked_input"], "observation_policy",
+                                  del_keys=False, sort=False)]
+        source = ["observation_policy"]
+    return [*transforms, VecNormV2(in_keys=source, out_keys=[NORMALISED],
+                                   reduce_batch_dims=True)]
+
+
+def make_policy(cfg: TrainConfig, actor_state: dict) -> ProbabilisticActor:
+    """A trained actor (it reads ``NORMALISED``, see :func:`make_eval_env`) from its state
+    dict, on ``cfg.env.device``."""
+    probe = make_base_env(cfg, training=False, num_envs=1, seed=0)
+    env = TransformedEnv(probe, Compose(*policy_input(cfg, probe)))
+    actor, _ = make_ppo_models(env.observation_spec[NORMALISED].shape[-1], env.action_spec,
+                               cfg.model)
+    actor.load_state_dict(actor_state)
+    return actor.to(cfg.env.device)
