@@ -348,3 +348,32 @@ def test_the_success_threshold_is_set_from_a_number_or_a_tensor():
         env.set_success_threshold(torch.tensor([0.1, 0.2]))
     with pytest.raises(TypeError, match="aids must be an AidsConfig"):
         ParkingEnv(2, aids={"action_repeat": 2})
+
+
+@pytest.mark.parametrize("aids", [None, AidsConfig(action_repeat=2, brake=BrakeConfig(),
+                                                   docking=DockingConfig(),
+                                                   near_goal_starts=NearGoalStarts())],
+                         ids=["paper", "aided"])
+def test_restoring_a_snapshot_replays_the_same_future(aids):
+    env = ParkingEnv(16, seed=3, config=ParkingConfig(occupancy=0.7), aids=aids)
+    td = env.reset()
+    actions = random_actions(16, 40, 1)
+    for a in actions[:10]:
+        td = env.step_and_maybe_reset(td.set("action", a))[1]
+    saved = env.snapshot()
+    kept = td.clone()
+
+    def future(td):
+        out = []
+        for a in actions[10:]:  # episodes end and reset on the way: the generator matters
+            step, td = env.step_and_maybe_reset(td.set("action", a))
+            out.append(step["next"].exclude("action"))
+        return torch.stack(out)
+
+    first = future(td)
+    env.restore(saved)
+    assert (future(kept) == first).all()
+    with pytest.raises(ValueError, match="snapshot must hold exactly"):
+        env.restore({k: v for k, v in saved.items() if k != "generator"})
+    with pytest.raises(ValueError, match=r"snapshot\['observation'\] must be a torch.float32"):
+        env.restore({**saved, "observation": saved["observation"][:3]})

@@ -8,6 +8,7 @@ import dataclasses
 import torch
 from torchrl.envs import TransformedEnv
 
+from tests.conftest import act
 from torchpark import (
     AidsConfig,
     BrakeConfig,
@@ -15,6 +16,7 @@ from torchpark import (
     NearGoalStarts,
     ParkingConfig,
     ParkingEnv,
+    RewardConfig,
 )
 from torchpark.aids.docking import error_from_goal, in_funnel
 from torchpark.runner import Episodes, run_episodes
@@ -38,7 +40,8 @@ def test_failure_modes_follow_their_definitions():
                    goal_slot=torch.zeros(4, dtype=torch.long),
                    steps=torch.tensor([50.0, 60.0, 300.0, 300.0]),
                    braked=torch.zeros(4, dtype=torch.bool),
-                   docked=torch.zeros(4, dtype=torch.bool))
+                   docked=torch.zeros(4, dtype=torch.bool),
+                   reached=torch.zeros(4, 3, dtype=torch.bool))
     assert run.grazing.tolist() == [True, False, False, False]
     assert run.freezing.tolist() == [False, False, False, True]
     # With actions held for 5 steps of dt, poses are 5 steps apart: 100 steps = 20 poses.
@@ -85,3 +88,51 @@ def test_docked_counts_the_episodes_the_docking_layer_drove():
     docked, started_in_funnel = run(funnel)
     assert not plain.docked.any()
     assert torch.equal(docked.docked, started_in_funnel) and 0 < int(started_in_funnel.sum()) < 32
+
+
+def test_a_looser_success_test_ends_the_same_trajectory_where_the_cost_first_fell_below_it():
+    """Two envs on the same lots and starts (3-5 m behind the goal, off the axis), the docking
+    law driving with actions held 3 steps of dt: one with the paper's test, one with 4e-2. The
+    loose env succeeds at the first env step whose ``cost`` (the lowest C over its steps of
+    dt) fell below 4e-2 in the strict env, and both agree step by step until then."""
+    aids = AidsConfig(action_repeat=3, docking=DockingConfig())
+    strict = ParkingEnv(16, seed=2, aids=aids)
+    loose = ParkingEnv(16, seed=2, aids=aids,
+                       config=ParkingConfig(reward=RewardConfig(success_threshold=4e-2)))
+    for env in (strict, loose):
+        env.reset()
+        goal = env.state.goal
+        back = torch.linspace(3.0, 5.0, 16)
+        side = torch.linspace(-0.5, 0.5, 16)
+        c, s = torch.cos(goal[:, 2]), torch.sin(goal[:, 2])
+        pose = torch.stack((goal[:, 0] - back * c - side * s, goal[:, 1] - back * s + side * c,
+                            goal[:, 2] + 0.1), dim=-1)
+        env.set_state(env.state._replace(pose=pose))
+    zeros = torch.zeros(16, 2)
+    first_below = torch.full((16,), -1)
+    loose_success = torch.full((16,), -1)
+    for step in range(400):
+        a = act(strict, zeros)
+        b = act(loose, zeros)
+        first_below = torch.where((first_below < 0) & (a["cost"][:, 0] < 4e-2), step,
+                                  first_below)
+        loose_success = torch.where((loose_success < 0) & b["success"][:, 0], step,
+                                    loose_success)
+        before = loose_success < 0
+        assert torch.equal(a["observation"][before], b["observation"][before])
+        if bool((loose_success >= 0).all()):
+            break
+    assert (first_below >= 0).all()
+    assert torch.equal(first_below, loose_success)
+
+
+def test_the_runner_reports_each_threshold_and_the_tightest_is_the_envs_success():
+    near = NearGoalStarts(probability=1.0, lateral=0.5, heading=0.3)
+    env = ParkingEnv(32, seed=1, config=ParkingConfig(max_steps=400),
+                     aids=AidsConfig(action_repeat=2, near_goal_starts=near,
+                                     docking=DockingConfig()))
+    run = run_episodes(lambda td: td.set("action", torch.zeros(32, 2)), TransformedEnv(env), 400)
+    assert run.thresholds == (4e-4, 4e-3, 4e-2) and run.reached.shape == (32, 3)
+    assert torch.equal(run.reached[:, 0], run.success) and run.success.float().mean() > 0.5
+    assert (run.reached[:, 0] <= run.reached[:, 1]).all()  # a looser test passes more often
+    assert (run.reached[:, 1] <= run.reached[:, 2]).all()

@@ -63,6 +63,20 @@ def test_resume_keeps_frames_and_curriculum(smoke_run, tmp_path):
     assert [int(v) for k, v in resumed["env"].items() if k.endswith("frames")] == [6144]
 
 
+def test_a_resumed_run_equals_the_uninterrupted_one_bit_for_bit(smoke_run, tmp_path):
+    """The smoke run saved a checkpoint half way (2,048 of 4,096 frames); resumed from it in
+    another directory, the second half repeats the uninterrupted run exactly: the same
+    networks, optimiser state, normalisation statistics and env snapshot at the end."""
+    _, final = smoke_run
+    half = final.parent / "checkpoint_2048.pt"
+    main(["--preset", "smoke", "--resume", str(half), f"logger.log_dir={tmp_path}"])
+    whole = torch.load(final, weights_only=True)
+    resumed = torch.load(tmp_path / "smoke" / "checkpoint_final.pt", weights_only=True)
+    assert resumed["frames"] == whole["frames"] == 4096
+    for key in ("actor", "critic", "optim", "obs_norm", "env", "sim", "carrier", "rng"):
+        torch.testing.assert_close(resumed[key], whole[key], rtol=0, atol=0, msg=key)
+
+
 def test_unknown_preset_or_field_is_an_error():
     with pytest.raises(ValueError, match="preset must be one of"):
         load_config("turbo")
@@ -112,7 +126,7 @@ def test_evaluation_never_replaces_files_without_overwrite(smoke_run, tmp_path, 
     assert refused.value.code == 2 and "evaluation.md exists" in capsys.readouterr().err
     assert (tmp_path / "evaluation.md").read_text() == "mine"
     evaluate_main([*argv, "--overwrite"])
-    assert (tmp_path / "evaluation.md").read_text().startswith("| occupancy")
+    assert (tmp_path / "evaluation.md").read_text().startswith("agent: policy alone")
 
 
 def test_evaluation_table_has_the_stated_columns(smoke_run, tmp_path):
@@ -123,12 +137,19 @@ def test_evaluation_table_has_the_stated_columns(smoke_run, tmp_path):
     assert tuple(rows[0]) == COLUMNS
     assert [float(r["occupancy"]) for r in rows] == [0.0, 0.2, 0.4, 0.6, 0.8, 0.9]
     assert [float(r["paper_success"]) for r in rows] == [0.20, 0.52, 0.65, 0.64, 0.59, 0.62]
+    assert {(r["agent"], r["brake"], r["docking_law"], r["action_repeat"]) for r in rows} == {
+        ("policy alone", "off", "off", "1")}  # the smoke preset: no aid
+    assert all(r["policy"].startswith("PPO (smoke preset run), ") for r in rows)
     for r in rows:  # every lot's first episode ended, in exactly one way
         total = float(r["success"]) + float(r["collision"]) + float(r["timeout"])
         assert total == pytest.approx(1.0)
+        assert float(r["success"]) <= float(r["success_4e-3"]) <= float(r["success_4e-2"])
         assert 1 <= float(r["mean_length"]) <= 50 and float(r["pos_err_median_m"]) >= 0
     markdown = (tmp_path / "evaluation.md").read_text()
-    assert markdown.startswith("| occupancy | episodes | success |") and markdown.count("\n") == 8
+    caption, blank, header = markdown.splitlines()[:3]
+    assert caption.startswith("agent: policy alone; brake: off; docking law: off; action repeat: 1")
+    assert blank == "" and header.startswith("| occupancy | episodes | success | success_4e-3 |")
+    assert markdown.count("\n") == 10
     videos = sorted(p.name for p in tmp_path.glob("rollout_occ*.mp4"))
     assert videos == [f"rollout_occ{p}.mp4" for p in sorted(["0", "20", "40", "60", "80", "90"])]
     assert iio.improps(tmp_path / "rollout_occ90.mp4").shape[1:] == (384, 480, 3)

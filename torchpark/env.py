@@ -64,11 +64,13 @@ class ParkingEnv(EnvBase):
     are detached: no autograd graph enters the state. ``step`` before the first ``reset``
     raises RuntimeError (the state holds no lot yet).
     Outputs per step: observation (N, NAV_DIM + n_rays) float32 (``torchpark.sim.observation``);
-    reward, done, terminated, truncated, success, collision (N, 1); occupancy (N, 1) float32,
-    the occupancy the current lot was drawn with. With the brake also braked (N, 1) bool (it
-    stopped the last step of dt) and interventions (N, 1) int64 (steps of dt it stopped or
-    steered this episode); with the docking law docking_engaged (N, 1) bool (it drives this
-    episode). Setting :attr:`occupancy` applies to lots drawn at later resets.
+    reward, done, terminated, truncated, success, collision (N, 1); cost (N, 1) float32, the
+    paper's C that the success test compares (with held actions the lowest over the step's
+    steps of dt); occupancy (N, 1) float32, the occupancy the current lot was drawn with.
+    With the brake also braked (N, 1) bool (it stopped the last step of dt) and interventions
+    (N, 1) int64 (steps of dt it stopped or steered this episode); with the docking law
+    docking_engaged (N, 1) bool (it drives this episode). Setting :attr:`occupancy` applies
+    to lots drawn at later resets.
     """
 
     batch_locked = True
@@ -129,6 +131,7 @@ class ParkingEnv(EnvBase):
         if aids is not None:
             self._state = AidedState(self._state, AidState.zeros(num_envs, self.device))
         self._observation = torch.zeros(num_envs, self.obs_dim, device=self.device)
+        self._cost = torch.zeros(num_envs, device=self.device)
         self._started = False  # no lot drawn yet: reset() first
         self._renderer = None  # a media.rendering.LotRenderer, made on the first picture
 
@@ -196,6 +199,7 @@ class ParkingEnv(EnvBase):
             success=flag(),
             collision=flag(),
             occupancy=Bounded(low=0.0, high=1.0, shape=(n, 1), dtype=torch.float32, device=dev),
+            cost=Unbounded(shape=(n, 1), dtype=torch.float32, device=dev),
             **aid_specs,
             shape=(n,),
             device=dev,
@@ -249,7 +253,8 @@ class ParkingEnv(EnvBase):
                                  f"{tuple(old.shape)} on {old.device}, got {new!r}")
         mask = torch.ones(self.num_envs, dtype=torch.bool, device=self.device) \
             if rows is None else rows.to(self.device, torch.bool).reshape(self.num_envs)
-        sim, self._observation = self._place_fn(self.state, self._observation, mask, state)
+        sim, self._observation, self._cost = self._place_fn(self.state, self._observation,
+                                                            self._cost, mask, state)
         if self.aids is not None:
             cleared = AidState.zeros(self.num_envs, self.device)
             aid = AidState(*(torch.where(mask, a, b) for a, b in zip(cleared, self.aid_state,
@@ -259,6 +264,51 @@ class ParkingEnv(EnvBase):
             self._state = sim
         self._started = True
         return self._reset_output()
+
+    def snapshot(self) -> dict[str, torch.Tensor | float | bool]:
+        """Everything the env's future depends on, as plain tensors and numbers (safe for
+        ``torch.save`` and ``torch.load(weights_only=True)``): every lot's state (and the
+        aids'), the last observation and cost, the random generator, the occupancy of later
+        lots and the success threshold. :meth:`restore` continues exactly from it."""
+        fields = {f"state.{k}": v for k, v in zip(ParkingState._fields, self.state,
+                                                   strict=True)}
+        if self.aids is not None:
+            fields |= {f"aids.{k}": v for k, v in zip(AidState._fields, self.aid_state,
+                                                      strict=True)}
+        return {**{k: v.clone() for k, v in fields.items()},
+                "observation": self._observation.clone(), "cost": self._cost.clone(),
+                "generator": self._generator.get_state(), "occupancy": self._occupancy,
+                "success_threshold": self._world.success_threshold.clone(),
+                "started": self._started}
+
+    def restore(self, snapshot: dict) -> None:
+        """Continue exactly from a :meth:`snapshot` of an env built the same way (same
+        ``num_envs``, config and aids). ValueError naming the entry when it does not fit."""
+        expected = self.snapshot()
+        missing = sorted(set(expected) - set(snapshot))
+        if missing or set(snapshot) - set(expected):
+            raise ValueError(f"snapshot must hold exactly {sorted(expected)}; missing "
+                             f"{missing}, extra {sorted(set(snapshot) - set(expected))}")
+        for key, ours in expected.items():
+            theirs = snapshot[key]
+            if isinstance(ours, torch.Tensor) and (
+                    not isinstance(theirs, torch.Tensor) or theirs.shape != ours.shape
+                    or theirs.dtype != ours.dtype):
+                raise ValueError(f"snapshot[{key!r}] must be a {ours.dtype} tensor of shape "
+                                 f"{tuple(ours.shape)}, got {theirs!r}")
+        sim = ParkingState(*(snapshot[f"state.{k}"].to(self.device)
+                             for k in ParkingState._fields))
+        if self.aids is None:
+            self._state = sim
+        else:
+            self._state = AidedState(sim, AidState(*(snapshot[f"aids.{k}"].to(self.device)
+                                                     for k in AidState._fields)))
+        self._observation = snapshot["observation"].to(self.device)
+        self._cost = snapshot["cost"].to(self.device)
+        self._generator.set_state(snapshot["generator"])
+        self.occupancy = snapshot["occupancy"]
+        self.set_success_threshold(snapshot["success_threshold"].to(self.device))
+        self._started = check_flag(snapshot["started"], "snapshot['started']")
 
     def randomize_step_counts(self) -> None:
         """Set every env's step count to a uniform draw in [0, max_steps), from the env's
@@ -306,7 +356,8 @@ class ParkingEnv(EnvBase):
         aid_outputs = {key: getattr(aid, key)[:, None] for key in self._aid_keys()}
         return TensorDict(
             {**fields, "observation": self._observation.clone(),  # the caller's, not our buffer
-             "occupancy": self.state.occupancy[:, None], **aid_outputs},
+             "cost": self._cost[:, None].clone(), "occupancy": self.state.occupancy[:, None],
+             **aid_outputs},
             batch_size=self.batch_size, device=self.device,
         )
 
@@ -329,8 +380,8 @@ class ParkingEnv(EnvBase):
             near = self.aids.near_goal_starts
             draws += (None if near is None else draw_near(self._world.goal_poses[lots.goal_slot],
                                                           near, self._generator),)
-        self._state, self._observation = self._reset_fn(self._state, self._observation, mask,
-                                                        *draws)
+        self._state, self._observation, self._cost = self._reset_fn(
+            self._state, self._observation, self._cost, mask, *draws)
         self._started = True
         return self._reset_output()
 
@@ -353,5 +404,6 @@ class ParkingEnv(EnvBase):
         state, out, finite = self._step_fn(self._state, action)
         if self.validate_actions and not bool(finite):  # before the state is kept
             raise ValueError("action must be finite (no NaN or inf); got a non-finite value")
-        self._state, self._observation = state, out.observation
-        return self._outputs(**{k: v for k, v in out._asdict().items() if k != "observation"})
+        self._state, self._observation, self._cost = state, out.observation, out.cost[:, 0]
+        return self._outputs(**{k: v for k, v in out._asdict().items()
+                                if k not in ("observation", "cost")})

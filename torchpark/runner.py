@@ -19,6 +19,9 @@ from torchpark.sim.observation import NAV_DIM
 GRAZING_SPEED = 1.0  # m/s
 FREEZE_DISTANCE = 1.0  # m
 FREEZE_STEPS = 100
+# One ruler for every agent: the paper's success test C < 4e-4 (~1 mm, 0.1 deg, 4 mm/s),
+# C < 4e-3 (about the paper's prose, "1 cm and 1 deg") and C < 4e-2.
+SUCCESS_THRESHOLDS = (4e-4, 4e-3, 4e-2)
 
 
 @dataclass
@@ -32,7 +35,10 @@ class Episodes:
     braked: the emergency brake stopped or steered (``steer_clear``) at least one of the
     episode's steps of dt (each one a collision in the paper's env, which has no brake; with
     the docking law, the law's count too); docked: the docking law (when on) had taken over
-    by the episode's end. Both False for an env without that aid.
+    by the episode's end. Both False for an env without that aid. reached: (N, K) whether
+    C fell below each of ``thresholds`` at some step of dt up to the episode's end (a
+    collision ends it): the success an env with that looser threshold would have reported,
+    exactly, since a looser test only ends the episode sooner on the same trajectory.
     """
 
     success: torch.Tensor
@@ -45,6 +51,8 @@ class Episodes:
     steps: torch.Tensor
     braked: torch.Tensor
     docked: torch.Tensor
+    reached: torch.Tensor
+    thresholds: tuple[float, ...] = SUCCESS_THRESHOLDS
     repeat: int = 1
 
     @property
@@ -71,8 +79,8 @@ class Episodes:
         return self.timeout & (moved < FREEZE_DISTANCE)
 
 
-def run_episodes(actor, env: TransformedEnv, max_steps: int, desc: str | None = None
-                 ) -> Episodes:
+def run_episodes(actor, env: TransformedEnv, max_steps: int, desc: str | None = None,
+                 thresholds: tuple[float, ...] = SUCCESS_THRESHOLDS) -> Episodes:
     """Run the deterministic policy until every lot's first episode has ended. No row is
     reset: a row that ended steps on, unrecorded, until the last one ends. With ``desc``, a
     progress bar of the episodes ended so far, so labelled (tqdm: ``torchpark[train]``)."""
@@ -86,6 +94,8 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int, desc: str | None = 
     steps = torch.zeros(n)
     braked = torch.zeros(n, dtype=torch.bool)
     docked = torch.zeros(n, dtype=torch.bool)
+    limits = torch.tensor(thresholds)
+    reached = torch.zeros(n, len(thresholds), dtype=torch.bool)
     td = env.reset()
     poses = [base.state.pose.cpu()]
     bar = None
@@ -98,6 +108,7 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int, desc: str | None = 
             td = env.step(actor(td))
             nxt = td["next"]
             first = nxt["done"][:, 0].cpu() & ~ended
+            reached |= ~ended[:, None] & (nxt["cost"].cpu() < limits)
             final[first] = nxt["observation"][:, :NAV_DIM].cpu()[first]
             for key in outcome:
                 outcome[key] |= first & nxt[key][:, 0].cpu()
@@ -118,4 +129,4 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int, desc: str | None = 
         bar.close()
     return Episodes(outcome["success"], outcome["collision"], outcome["truncated"], length,
                     final, torch.stack(poses), base.state.goal_slot.cpu(), steps, braked,
-                    docked, base.action_repeat)
+                    docked, reached, tuple(thresholds), base.action_repeat)

@@ -6,12 +6,13 @@
 Runs the deterministic policy (the TanhNormal's mode) for ``--episodes`` episodes at each
 occupancy level on lots the training never drew (its own seed; the same goals and starts at
 every level, so the levels differ only in their parked cars), and prints and writes
-(``evaluation.md``, ``evaluation.csv``) success, collision and timeout rates, mean episode
-length, the failure modes (grazing collisions, freezing: see GRAZING_SPEED, FREEZE_DISTANCE;
-braked: episodes in which the emergency brake, when on, stopped a step; docked: episodes
-the docking layer, when on, drove to their end),
-and the median and 90th percentile of the final position and heading errors; with
-``--videos`` (mp4 by default) also one rollout video per level.
+(``evaluation.md``, ``evaluation.csv``) what the agent is made of (COMPOSITION), success at
+the paper's C < 4e-4 and at 4e-3 and 4e-2 (the same episodes), collision and timeout rates,
+mean episode length, the failure modes (grazing collisions, freezing: see
+torchpark.runner; braked: episodes in which the emergency brake, when on, stopped a step;
+docked: episodes the docking law, when on, drove to their end), and the median and 90th
+percentile of the final position and heading errors; with ``--videos`` (mp4 by default) also
+one rollout video per level.
 """
 
 from __future__ import annotations
@@ -35,9 +36,15 @@ from trainers.utils import make_eval_env, make_policy
 
 # Table 2 of the paper: success rate per curriculum phase (occupancy level).
 PAPER_SUCCESS = dict(zip(PAPER_LEVELS, (0.20, 0.52, 0.65, 0.64, 0.59, 0.62), strict=True))
-COLUMNS = ("occupancy", "episodes", "success", "collision", "timeout", "grazing", "freezing",
-           "braked", "docked", "mean_length", "pos_err_median_m", "pos_err_p90_m",
-           "heading_err_median_deg", "heading_err_p90_deg", "paper_success")
+# What the agent is made of, in its own columns, so that no table is taken for another.
+COMPOSITION = ("agent", "brake", "docking_law", "action_repeat", "policy")
+# success: the paper's C < 4e-4; success_4e-3 and success_4e-2 the looser tests, from the
+# same episodes (torchpark.runner.SUCCESS_THRESHOLDS).
+RESULTS = ("occupancy", "episodes", "success", "success_4e-3", "success_4e-2", "collision",
+           "timeout", "grazing", "freezing", "braked", "docked", "mean_length",
+           "pos_err_median_m", "pos_err_p90_m", "heading_err_median_deg", "heading_err_p90_deg",
+           "paper_success")
+COLUMNS = COMPOSITION + RESULTS
 
 
 def load(path: str) -> tuple[TrainConfig, dict]:
@@ -53,6 +60,22 @@ def load(path: str) -> tuple[TrainConfig, dict]:
                          f"{str(err).splitlines()[0]}") from None
 
 
+def composition(cfg: TrainConfig, checkpoint: dict) -> dict[str, str | int]:
+    """What the evaluated agent is made of: the COMPOSITION columns."""
+    agent = cfg.agent
+    brake = "off" if not agent.emergency_brake else (
+        f"steers clear ({agent.steer_clear} angles)" if agent.steer_clear else "stops")
+    law = (f"0-{agent.docking_reach:g} m behind the goal, +-{agent.docking_lateral:g} m"
+           if agent.docking else "off")
+    aids = [name for name, on in (("emergency brake", agent.emergency_brake),
+                                  ("docking law", agent.docking)) if on]
+    return {
+        "agent": "hybrid: policy + " + " + ".join(aids) if aids else "policy alone",
+        "brake": brake, "docking_law": law, "action_repeat": agent.action_repeat,
+        "policy": f"PPO ({cfg.logger.exp_name} preset run), {checkpoint['frames']:,} frames",
+    }
+
+
 def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
                    episodes: int, seed: int) -> dict[str, float]:
     """One episode in each of ``episodes`` lots at ``occupancy``: the row of the table."""
@@ -62,6 +85,8 @@ def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
     return {
         "occupancy": occupancy, "episodes": episodes,
         "success": run.success.float().mean().item(),
+        **{name: run.reached[:, run.thresholds.index(threshold)].float().mean().item()
+           for name, threshold in (("success_4e-3", 4e-3), ("success_4e-2", 4e-2))},
         "collision": run.collision.float().mean().item(),
         "timeout": run.timeout.float().mean().item(),
         "grazing": run.grazing.float().mean().item(),
@@ -91,8 +116,10 @@ def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
     checkpoint = tree_map_only(torch.Tensor, lambda t: t.to(cfg.env.device), checkpoint)
     actor = make_policy(cfg, checkpoint["actor"])
     rows = []
+    made_of = composition(cfg, checkpoint)
     for level in levels:
-        rows.append(evaluate_level(actor, checkpoint, cfg, level, episodes, seed))
+        rows.append({**made_of,
+                     **evaluate_level(actor, checkpoint, cfg, level, episodes, seed)})
         if videos is not None:
             env = make_eval_env(cfg, checkpoint["obs_norm"], level, 1, seed)
             with set_exploration_type(ExplorationType.DETERMINISTIC):
@@ -101,11 +128,16 @@ def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
 
 
 def to_markdown(rows: list[dict[str, float]]) -> str:
-    lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---:|" * len(COLUMNS)]
+    """The rows as a Markdown table, under a line saying what the agent is made of (when the
+    rows carry the COMPOSITION columns)."""
+    lines = []
+    if rows and all(c in rows[0] for c in COMPOSITION):
+        lines += ["; ".join(f"{c.replace('_', ' ')}: {rows[0][c]}" for c in COMPOSITION), ""]
+    lines += ["| " + " | ".join(RESULTS) + " |", "|" + "---:|" * len(RESULTS)]
     for row in rows:
         lines.append("| " + " | ".join(
             f"{row[c]:.0%}" if c in ("occupancy",) else
-            f"{row[c]:d}" if isinstance(row[c], int) else f"{row[c]:.3g}" for c in COLUMNS
+            f"{row[c]:d}" if isinstance(row[c], int) else f"{row[c]:.3g}" for c in RESULTS
         ) + " |")
     return "\n".join(lines)
 

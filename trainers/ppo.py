@@ -76,6 +76,39 @@ def check_log_dir(path: Path, resume: str | None, overwrite: bool) -> None:
         f.unlink()
 
 
+def run_state(env, collector: Collector) -> dict:
+    """What an exact resume needs beyond the networks, the optimiser and the transforms'
+    statistics: every lot's state and the env's generator (``ParkingEnv.snapshot``), the
+    collector's carried TensorDict (the next step's input: observation, step counts, episode
+    rewards; not the collector's own trajectory ids, bookkeeping PPO does not read) and
+    torch's random state (the policy's samples, the minibatch order)."""
+    # The carrier is the collector's private attribute: torchrl 0.14 has no public accessor
+    # and its own load_state_dict starts fresh trajectories (tests/test_trainer.py checks
+    # that a resumed run equals an uninterrupted one, bit for bit).
+    carrier = collector._carrier.exclude("collector")
+    state = {"sim": env.base_env.snapshot(), "carrier": carrier.to_dict(),
+             "rng": torch.get_rng_state()}
+    if torch.device(env.device).type == "cuda":
+        state["cuda_rng"] = torch.cuda.get_rng_state(env.device)
+    return state
+
+
+def resume_state(checkpoint: dict, env, collector: Collector, path: str) -> None:
+    """Put the env, the collector and torch's random state where the checkpoint's run was
+    (after the collector's own reset, which would otherwise have moved them)."""
+    env.load_state_dict(checkpoint["env"])
+    if "sim" not in checkpoint:  # written before exact resumes: new episodes from here
+        print(f"{path}: no env snapshot (an older checkpoint); resuming with fresh episodes")
+        return
+    env.base_env.restore(checkpoint["sim"])
+    carrier = collector._carrier
+    carrier.update(type(carrier).from_dict(checkpoint["carrier"], batch_size=carrier.batch_size,
+                                           device=carrier.device))
+    torch.set_rng_state(checkpoint["rng"])
+    if "cuda_rng" in checkpoint:
+        torch.cuda.set_rng_state(checkpoint["cuda_rng"], env.device)
+
+
 def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) -> Path:
     """Run PPO; returns the path of the final checkpoint. A run directory that holds another
     run is refused unless ``overwrite`` (see :func:`check_log_dir`)."""
@@ -114,7 +147,6 @@ def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) 
         actor.load_state_dict(checkpoint["actor"])
         critic.load_state_dict(checkpoint["critic"])
         optim.load_state_dict(checkpoint["optim"])
-        env.load_state_dict(checkpoint["env"])
         frames = checkpoint["frames"]
     remaining = cfg.collector.total_frames - frames
     repeat = cfg.agent.action_repeat  # frames per env step
@@ -125,8 +157,11 @@ def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) 
     # The collector counts env steps; frames are steps of dt.
     collector = Collector(env, actor, frames_per_batch=cfg.collector.frames_per_batch // repeat,
                           total_frames=remaining // repeat, device=cfg.env.device)
-    # After the collector's reset: spread the first timeouts over [1, max_steps] steps.
-    env.base_env.randomize_step_counts()
+    if checkpoint is None:
+        # After the collector's reset: spread the first timeouts over [1, max_steps] steps.
+        env.base_env.randomize_step_counts()
+    else:
+        resume_state(checkpoint, env, collector, resume)
     logger = TensorboardLogger(exp_name=cfg.logger.exp_name, log_dir=cfg.logger.log_dir)
     curriculum = next(t for t in env.transform if isinstance(t, OccupancyCurriculum))
 
@@ -135,7 +170,8 @@ def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) 
         torch.save({"config": dataclasses.asdict(cfg), "frames": frames,
                     "actor": actor.state_dict(), "critic": critic.state_dict(),
                     "optim": optim.state_dict(), "env": env.state_dict(),
-                    "obs_norm": env.transform[-1].state_dict()}, path)
+                    "obs_norm": env.transform[-1].state_dict(), **run_state(env, collector)},
+                   path)
         return path
 
     next_checkpoint = (frames // cfg.logger.checkpoint_every + 1) * cfg.logger.checkpoint_every
@@ -188,8 +224,9 @@ def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) 
             next_checkpoint += cfg.logger.checkpoint_every
         collect_start = time.perf_counter()
     bar.close()
+    final = save("checkpoint_final.pt")
     collector.shutdown()
-    return save("checkpoint_final.pt")
+    return final
 
 
 def main(argv: list[str] | None = None) -> None:

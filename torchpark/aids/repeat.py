@@ -19,11 +19,13 @@ def merge_steps(state: tuple, out: StepResult, new_state: tuple, new_out: StepRe
                 ) -> tuple[tuple, StepResult]:
     """Append one more step of dt (``new_*``, taken from ``state``) to a held action's steps
     so far: rows already done keep their state and outputs; the others take the new ones,
-    with the rewards summed."""
+    with the rewards summed and the lowest cost C kept (where a looser success test would
+    have ended the held action)."""
     live = ~out.done[:, 0]
     merged = mux_rows(live, new_out, out)
     return mux_rows(live, new_state, state), merged._replace(
-        reward=out.reward + torch.where(live[:, None], new_out.reward, 0.0))
+        reward=out.reward + torch.where(live[:, None], new_out.reward, 0.0),
+        cost=torch.minimum(out.cost, merged.cost))
 
 
 def hold(step: StepFn, merge: MergeFn, repeat: int) -> StepFn:

@@ -76,15 +76,15 @@ def aided_step(state: AidedState, action: Tensor, world: World, steer_angles: Te
     return AidedState(sim, aid), out, action.isfinite().all()
 
 
-def aided_reset(state: AidedState, observation: Tensor, mask: Tensor, lots: LotDraw,
-                near: NearDraw | None, world: World, cfg: ParkingConfig
-                ) -> tuple[AidedState, Tensor]:
+def aided_reset(state: AidedState, observation: Tensor, cost: Tensor, mask: Tensor,
+                lots: LotDraw, near: NearDraw | None, world: World, cfg: ParkingConfig
+                ) -> tuple[AidedState, Tensor, Tensor]:
     """The paper's reset with the aids' state cleared, and with ``near`` (near-goal starts)
     preferred to the uniform start where it asks."""
     fresh = new_lots(lots, world, cfg)
     if near is not None:
         fresh = fresh._replace(pose=near_start(fresh.pose, near, fresh.goal, fresh.present,
                                                world, cfg))
-    sim, observation = place(state.sim, observation, mask, fresh, world, cfg)
+    sim, observation, cost = place(state.sim, observation, cost, mask, fresh, world, cfg)
     cleared = AidState.zeros(mask.shape[0], mask.device)
-    return AidedState(sim, mux_rows(mask, cleared, state.aids)), observation
+    return AidedState(sim, mux_rows(mask, cleared, state.aids)), observation, cost

@@ -58,7 +58,8 @@ class ParkingState(NamedTuple):
 
 
 class StepResult(NamedTuple):
-    """What one step emits; all (N, 1) except observation (N, NAV_DIM + n_rays) float32."""
+    """What one step emits; all (N, 1) except observation (N, NAV_DIM + n_rays) float32.
+    cost: the paper's C after the step (float32), what the success test compares."""
 
     observation: Tensor
     reward: Tensor
@@ -67,6 +68,7 @@ class StepResult(NamedTuple):
     done: Tensor
     success: Tensor
     collision: Tensor
+    cost: Tensor
 
 
 def mux_rows(mask: Tensor, new: tuple, old: tuple) -> tuple:
@@ -100,7 +102,7 @@ def commit(state: ParkingState, pose: Tensor, speed: Tensor, collision: Tensor, 
     reward = parking_reward(cost, collision, success, cfg.reward)
     terminated = collision | success
     truncated = (state.steps >= cfg.max_steps) & ~terminated
-    column = (reward, terminated, truncated, terminated | truncated, success, collision)
+    column = (reward, terminated, truncated, terminated | truncated, success, collision, cost)
     return state, StepResult(observation, *(t[:, None] for t in column))
 
 
@@ -135,17 +137,21 @@ def new_lots(lots: LotDraw, world: World, cfg: ParkingConfig) -> ParkingState:
     )
 
 
-def place(state: ParkingState, observation: Tensor, mask: Tensor, fresh: ParkingState,
-          world: World, cfg: ParkingConfig) -> tuple[ParkingState, Tensor]:
-    """``fresh`` where ``mask`` (N,) is set, ``state`` elsewhere, and the observation (N, D)
-    of the rows taken from ``fresh``; the other rows are returned untouched, bit for bit.
-    Every row is computed and muxed with ``torch.where``: static shapes and no host sync."""
+def place(state: ParkingState, observation: Tensor, cost: Tensor, mask: Tensor,
+          fresh: ParkingState, world: World, cfg: ParkingConfig
+          ) -> tuple[ParkingState, Tensor, Tensor]:
+    """``fresh`` where ``mask`` (N,) is set, ``state`` elsewhere, with the observation (N, D)
+    and cost C (N,) of the rows taken from ``fresh``; the other rows' state, observation and
+    cost are returned untouched, bit for bit. Every row is computed and muxed with
+    ``torch.where``: static shapes and no host sync."""
     state = mux_rows(mask, fresh, state)
-    new_observation, _ = observe(state, world, cfg)
-    return state, torch.where(mask[:, None], new_observation, observation)
+    new_observation, new_cost = observe(state, world, cfg)
+    return (state, torch.where(mask[:, None], new_observation, observation),
+            torch.where(mask, new_cost, cost))
 
 
-def reset_rows(state: ParkingState, observation: Tensor, mask: Tensor, lots: LotDraw,
-               world: World, cfg: ParkingConfig) -> tuple[ParkingState, Tensor]:
+def reset_rows(state: ParkingState, observation: Tensor, cost: Tensor, mask: Tensor,
+               lots: LotDraw, world: World, cfg: ParkingConfig
+               ) -> tuple[ParkingState, Tensor, Tensor]:
     """The paper's reset: the drawn ``lots`` for the rows where ``mask`` (N,) is set."""
-    return place(state, observation, mask, new_lots(lots, world, cfg), world, cfg)
+    return place(state, observation, cost, mask, new_lots(lots, world, cfg), world, cfg)
