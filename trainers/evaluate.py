@@ -29,7 +29,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.media.recording import record_video
-from torchpark.runner import run_episodes
+from torchpark.runner import Episodes, run_episodes
 from trainers.checkpoint import load_checkpoint
 from trainers.config import TrainConfig, check_device, upgrade_saved
 from trainers.utils import make_eval_env, make_policy
@@ -81,9 +81,14 @@ def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
     """One episode in each of ``episodes`` lots at ``occupancy``: the row of the table."""
     env = make_eval_env(cfg, checkpoint["obs_norm"], occupancy, episodes, seed)
     run = run_episodes(actor, env, cfg.env.max_steps, desc=f"occupancy {occupancy:.0%}")
+    return level_row(run, occupancy)
+
+
+def level_row(run: Episodes, occupancy: float) -> dict[str, float]:
+    """The RESULTS columns of one level from its episodes."""
     position, heading = run.position_error, run.heading_error
     return {
-        "occupancy": occupancy, "episodes": episodes,
+        "occupancy": occupancy, "episodes": run.success.shape[0],
         "success": run.success.float().mean().item(),
         **{name: run.reached[:, run.thresholds.index(threshold)].float().mean().item()
            for name, threshold in (("success_4e-3", 4e-3), ("success_4e-2", 4e-2))},
@@ -142,6 +147,18 @@ def to_markdown(rows: list[dict[str, float]]) -> str:
     return "\n".join(lines)
 
 
+def write_tables(rows: list[dict], out: Path) -> str:
+    """Write ``evaluation.md`` and ``evaluation.csv`` (COLUMNS) into ``out``; returns the
+    Markdown."""
+    table = to_markdown(rows)
+    (out / "evaluation.md").write_text(table + "\n")
+    with open(out / "evaluation.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+    return table
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m trainers.evaluate",
                                      description=__doc__.splitlines()[0])
@@ -174,13 +191,7 @@ def main(argv: list[str] | None = None) -> None:
                         video_format=args.videos, device=args.device)
     except (ValueError, OSError) as err:
         parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
-    table = to_markdown(rows)
-    (out / "evaluation.md").write_text(table + "\n")
-    with open(out / "evaluation.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
-    print(table)
+    print(write_tables(rows, out))
 
 
 if __name__ == "__main__":
