@@ -377,3 +377,17 @@ def test_restoring_a_snapshot_replays_the_same_future(aids):
         env.restore({k: v for k, v in saved.items() if k != "generator"})
     with pytest.raises(ValueError, match=r"snapshot\['observation'\] must be a torch.float32"):
         env.restore({**saved, "observation": saved["observation"][:3]})
+
+
+def test_a_process_builds_as_many_compiled_envs_as_it_likes():
+    """torch.compile caches every compiled partial under one wrapper, 8 graphs by default:
+    the third compiled env of a fresh process used to fail (fullgraph=True)."""
+    code = ("import torch\nfrom torchpark import AidsConfig, BrakeConfig, ParkingEnv\n"
+            "for i in range(6):\n"
+            "    aids = AidsConfig(brake=BrakeConfig()) if i % 2 else None\n"
+            "    env = ParkingEnv(2 + i, seed=i, aids=aids, compile_step=True)\n"
+            "    env.reset(); env.rand_step(); env.reset()\n"
+            "print('ok', torch._dynamo.config.recompile_limit)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0 and done.stdout.split() == ["ok", "256"], done.stderr[-800:]

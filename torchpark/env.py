@@ -37,6 +37,19 @@ from torchpark.sim.observation import observation_dim
 from torchpark.sim.step import ParkingState, parking_step, place, reset_rows
 from torchpark.sim.world import World, build_world
 
+# torch.compile keeps the graphs of every compiled partial function in the cache of one
+# wrapper code object, 8 by default: with three per env, the third compiled env of a process
+# failed (fullgraph=True turns the limit into an error). Each env's graphs are its own.
+_RECOMPILE_LIMIT = 256
+
+
+def _allow_recompiles() -> None:
+    """Raise torch's per-code-object recompile limit to _RECOMPILE_LIMIT (never lower it)."""
+    config = torch._dynamo.config
+    config.recompile_limit = max(config.recompile_limit, _RECOMPILE_LIMIT)
+    config.accumulated_recompile_limit = max(config.accumulated_recompile_limit,
+                                             4 * _RECOMPILE_LIMIT)
+
 
 class ParkingEnv(EnvBase):
     """The paper's parking task for ``num_envs`` lots at once, every tensor on ``device``.
@@ -119,6 +132,7 @@ class ParkingEnv(EnvBase):
             reset = partial(aided_reset, world=self._world, cfg=cfg)
         functions = [step, reset, merge_steps, partial(place, world=self._world, cfg=cfg)]
         if compile_step:
+            _allow_recompiles()
             functions = [torch.compile(f, fullgraph=True, **(compile_kwargs or {}))
                          for f in functions]
         step, self._reset_fn, merge, self._place_fn = functions
