@@ -20,6 +20,7 @@ snapshot, the next observation, torch's and numpy's random states, the frame cou
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -86,12 +87,17 @@ class PaperSchedule(BaseCallback):
 
 
 def save(model: PPO, out: Path) -> None:
-    """The model and everything else an exact resume needs (see the module's docstring)."""
-    model.save(out / MODEL)
+    """The model and everything else an exact resume needs (see the module's docstring),
+    each written to a temporary file first and then moved into place, so that a run killed
+    while saving leaves the previous checkpoint whole."""
+    model.save(out / f"tmp_{MODEL}")
     torch.save({"frames": model.num_timesteps, "env": parking_env(model).snapshot(),
                 "last_obs": torch.as_tensor(model._last_obs),
                 "episode_starts": torch.as_tensor(model._last_episode_starts),
-                "rng": torch.get_rng_state(), "numpy_rng": numpy_rng_state()}, out / STATE)
+                "rng": torch.get_rng_state(), "numpy_rng": numpy_rng_state()},
+               out / f"tmp_{STATE}")
+    os.replace(out / f"tmp_{STATE}", out / STATE)
+    os.replace(out / f"tmp_{MODEL}", out / MODEL)
 
 
 def numpy_rng_state() -> dict:
@@ -110,7 +116,9 @@ def resume(out: Path, seed: int) -> PPO:
     """The model saved in ``out``, its env and random state where the run stopped."""
     state = torch.load(out / STATE, weights_only=True)
     model = PPO.load(out / MODEL, env=make_env(seed), device="cpu")
-    model.num_timesteps = state["frames"]
+    if model.num_timesteps != state["frames"]:
+        raise ValueError(f"{out}: {MODEL} holds {model.num_timesteps} frames, {STATE} "
+                         f"{state['frames']}: the run stopped while saving; no exact resume")
     model.get_env().reset()  # the wrappers' order checks; the snapshot then replaces it all
     parking_env(model).restore(state["env"])
     # SB3 resets the env at learn() unless it holds the last observation: give it the saved.
