@@ -336,6 +336,9 @@ def test_set_state_places_rows_and_observes_them():
         env.set_state(state._replace(pose=torch.zeros(4, 2)))
     with pytest.raises(TypeError, match="state must be a ParkingState"):
         env.set_state(tuple(state))
+    for rows in (torch.tensor([1, 0, 1, 0]), torch.ones(3, dtype=torch.bool), [True] * 4):
+        with pytest.raises(ValueError, match="rows must be a bool tensor of 4 elements"):
+            env.set_state(state, rows)
 
 
 def test_the_success_threshold_is_set_from_a_number_or_a_tensor():
@@ -373,6 +376,8 @@ def test_restoring_a_snapshot_replays_the_same_future(aids):
     first = future(td)
     env.restore(saved)
     assert (future(kept) == first).all()
+    with pytest.raises(TypeError, match=r"snapshot must be a dict from ParkingEnv\.snapshot"):
+        env.restore(list(saved.items()))
     with pytest.raises(ValueError, match="snapshot must hold exactly"):
         env.restore({k: v for k, v in saved.items() if k != "generator"})
     with pytest.raises(ValueError, match=r"snapshot\['observation'\] must be a torch.float32"):

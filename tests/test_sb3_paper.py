@@ -4,10 +4,11 @@ three-threshold table with what the agent is made of."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from trainers.evaluate import COLUMNS
-from trainers.sb3_paper import MODEL, STATE, evaluate, train
+from trainers.sb3_paper import MODEL, STATE, evaluate, main, train
 
 
 def test_a_resumed_run_equals_the_uninterrupted_one(tmp_path):
@@ -35,3 +36,21 @@ def test_the_evaluation_is_the_three_threshold_table_of_a_policy_alone(tmp_path)
     assert all(tuple(r) == COLUMNS and r["agent"] == "policy alone" for r in rows)
     assert all(r["success"] <= r["success_4e-3"] <= r["success_4e-2"] for r in rows)
     assert rows[0]["policy"].startswith("PPO (Stable-Baselines3 defaults")
+
+
+def test_the_command_line_refuses_what_would_hurt(tmp_path, capsys):
+    def refused(*argv: str) -> str:
+        with pytest.raises(SystemExit) as stop:
+            main(["--out", str(tmp_path), *argv])
+        assert stop.value.code == 2
+        return capsys.readouterr().err
+
+    assert "--seed must be in [0, 2**63)" in refused("--seed", "-1")
+    assert "holds no whole run" in refused("--resume")
+    assert "holds no whole run" in refused("--evaluate")
+    (tmp_path / MODEL).write_bytes(b"not a model")
+    (tmp_path / STATE).write_bytes(b"not a state")
+    assert "holds a run: --resume it or --overwrite it" in refused()
+    (tmp_path / "evaluation.md").write_text("mine")
+    assert "holds an evaluation: --overwrite" in refused("--evaluate")
+    assert (tmp_path / "evaluation.md").read_text() == "mine"

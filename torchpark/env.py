@@ -34,7 +34,7 @@ from torchpark.config import ParkingConfig, check_flag, check_occupancy, is_inte
 from torchpark.sim.episodes import draw_lots
 from torchpark.sim.layout import build_layout
 from torchpark.sim.observation import observation_dim
-from torchpark.sim.step import ParkingState, parking_step, place, reset_rows
+from torchpark.sim.step import ParkingState, mux_rows, parking_step, place, reset_rows
 from torchpark.sim.world import World, build_world
 
 # torch.compile keeps the graphs of every compiled partial function in the cache of one
@@ -137,13 +137,16 @@ class ParkingEnv(EnvBase):
                          for f in functions]
         step, self._reset_fn, merge, self._place_fn = functions
         self._step_fn = hold(step, merge, self.action_repeat)
+        # The aids' output keys this env emits.
+        self._aid_keys = () if aids is None else (
+            (BRAKE_KEYS if aids.brake is not None else ())
+            + (DOCKING_KEYS if aids.docking is not None else ()))
         self._make_specs()
         self._generator = torch.Generator(device=self.device)
         self._set_seed(seed)
         m = self._world.obstacles.cx.shape[0]
-        self._state: ParkingState | AidedState = ParkingState.zeros(num_envs, m, self.device)
-        if aids is not None:
-            self._state = AidedState(self._state, AidState.zeros(num_envs, self.device))
+        self._keep(ParkingState.zeros(num_envs, m, self.device),
+                   AidState.zeros(num_envs, self.device))
         self._observation = torch.zeros(num_envs, self.obs_dim, device=self.device)
         self._cost = torch.zeros(num_envs, device=self.device)
         self._started = False  # no lot drawn yet: reset() first
@@ -193,13 +196,6 @@ class ParkingEnv(EnvBase):
     def obs_dim(self) -> int:
         return observation_dim(self.config)
 
-    def _aid_keys(self) -> tuple[str, ...]:
-        """The aids' output keys this env emits."""
-        if self.aids is None:
-            return ()
-        return ((BRAKE_KEYS if self.aids.brake is not None else ())
-                + (DOCKING_KEYS if self.aids.docking is not None else ()))
-
     def _make_specs(self) -> None:
         n, dev, veh = self.num_envs, self.device, self.config.vehicle
 
@@ -207,7 +203,7 @@ class ParkingEnv(EnvBase):
             return Binary(n=1, shape=(n, 1), dtype=torch.bool, device=dev)
 
         aid_specs = {key: Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
-                     if key == "interventions" else flag() for key in self._aid_keys()}
+                     if key == "interventions" else flag() for key in self._aid_keys}
         self.observation_spec = Composite(
             observation=Unbounded(shape=(n, self.obs_dim), dtype=torch.float32, device=dev),
             success=flag(),
@@ -252,6 +248,12 @@ class ParkingEnv(EnvBase):
         """The aids' per-env state (None without aids)."""
         return self._state.aids if self.aids is not None else None
 
+    def _keep(self, sim: ParkingState, aid: AidState | None = None) -> None:
+        """Hold the paper's state and, with aids, the aids' (``aid``; the current one by
+        default)."""
+        self._state = sim if self.aids is None else AidedState(
+            sim, self.aid_state if aid is None else aid)
+
     def set_state(self, state: ParkingState, rows: torch.Tensor | None = None) -> TensorDictBase:
         """Put the rows ``rows`` ((N,) bool; default all) in the given paper state (a
         :class:`ParkingState` of N rows, e.g. ``env.state._replace(pose=...)``) at the start
@@ -265,17 +267,18 @@ class ParkingEnv(EnvBase):
                     or new.dtype != old.dtype or new.device != old.device:
                 raise ValueError(f"state.{name} must be a {old.dtype} tensor of shape "
                                  f"{tuple(old.shape)} on {old.device}, got {new!r}")
-        mask = torch.ones(self.num_envs, dtype=torch.bool, device=self.device) \
-            if rows is None else rows.to(self.device, torch.bool).reshape(self.num_envs)
+        if rows is None:
+            rows = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
+        elif not isinstance(rows, torch.Tensor) or rows.dtype != torch.bool \
+                or rows.numel() != self.num_envs:
+            raise ValueError(f"rows must be a bool tensor of {self.num_envs} elements (one per "
+                             f"env), got {rows!r}")
+        mask = rows.to(self.device).reshape(self.num_envs)
         sim, self._observation, self._cost = self._place_fn(self.state, self._observation,
                                                             self._cost, mask, state)
-        if self.aids is not None:
-            cleared = AidState.zeros(self.num_envs, self.device)
-            aid = AidState(*(torch.where(mask, a, b) for a, b in zip(cleared, self.aid_state,
-                                                                       strict=True)))
-            self._state = AidedState(sim, aid)
-        else:
-            self._state = sim
+        cleared = None if self.aids is None else mux_rows(
+            mask, AidState.zeros(self.num_envs, self.device), self.aid_state)
+        self._keep(sim, cleared)
         self._started = True
         return self._reset_output()
 
@@ -298,6 +301,9 @@ class ParkingEnv(EnvBase):
     def restore(self, snapshot: dict) -> None:
         """Continue exactly from a :meth:`snapshot` of an env built the same way (same
         ``num_envs``, config and aids). ValueError naming the entry when it does not fit."""
+        if not isinstance(snapshot, dict):
+            raise TypeError(f"snapshot must be a dict from ParkingEnv.snapshot, got "
+                            f"{type(snapshot).__name__}")
         expected = self.snapshot()
         missing = sorted(set(expected) - set(snapshot))
         if missing or set(snapshot) - set(expected):
@@ -312,11 +318,8 @@ class ParkingEnv(EnvBase):
                                  f"{tuple(ours.shape)}, got {theirs!r}")
         sim = ParkingState(*(snapshot[f"state.{k}"].to(self.device)
                              for k in ParkingState._fields))
-        if self.aids is None:
-            self._state = sim
-        else:
-            self._state = AidedState(sim, AidState(*(snapshot[f"aids.{k}"].to(self.device)
-                                                     for k in AidState._fields)))
+        self._keep(sim, None if self.aids is None else AidState(
+            *(snapshot[f"aids.{k}"].to(self.device) for k in AidState._fields)))
         self._observation = snapshot["observation"].to(self.device)
         self._cost = snapshot["cost"].to(self.device)
         self._generator.set_state(snapshot["generator"])
@@ -334,8 +337,7 @@ class ParkingEnv(EnvBase):
         """
         steps = torch.randint(self.config.max_steps, (self.num_envs,),
                               generator=self._generator, device=self.device)
-        sim = self.state._replace(steps=steps)
-        self._state = AidedState(sim, self.aid_state) if self.aids is not None else sim
+        self._keep(self.state._replace(steps=steps))
 
     # ------------------------------------------------------------------ pictures
     def render(self, index: int = 0) -> np.ndarray:
@@ -367,7 +369,7 @@ class ParkingEnv(EnvBase):
     # ------------------------------------------------------------------ EnvBase hooks
     def _outputs(self, **fields: torch.Tensor) -> TensorDictBase:
         aid = self.aid_state
-        aid_outputs = {key: getattr(aid, key)[:, None] for key in self._aid_keys()}
+        aid_outputs = {key: getattr(aid, key)[:, None] for key in self._aid_keys}
         return TensorDict(
             {**fields, "observation": self._observation.clone(),  # the caller's, not our buffer
              "cost": self._cost[:, None].clone(), "occupancy": self.state.occupancy[:, None],

@@ -69,7 +69,6 @@ class PaperSchedule(BaseCallback):
         frames = self.num_timesteps
         if frames and frames % self.every < self.model.n_steps:
             save(self.model, self.out)
-        parking_env(self.model).occupancy = self.level()
 
     def _on_step(self) -> bool:
         for done, info in zip(self.locals["dones"], self.locals["infos"], strict=True):
@@ -181,7 +180,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
     parser.add_argument("--overwrite", action="store_true",
-                        help="start afresh in an --out that holds a run")
+                        help="start afresh in an --out that holds a run (its checkpoint is "
+                             "replaced; its TensorBoard events stay beside the new run's), or "
+                             "replace an evaluation there")
     parser.add_argument("--evaluate", action="store_true",
                         help="write evaluation.md/.csv for the model in --out")
     parser.add_argument("--episodes", type=int, default=200, help="per level (--evaluate)")
@@ -189,14 +190,21 @@ def main(argv: list[str] | None = None) -> None:
     for name in ("total_frames", "frames_per_level", "checkpoint_every", "episodes"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1")
+    if not 0 <= args.seed < 2**63:
+        parser.error(f"--seed must be in [0, 2**63), got {args.seed}")
+    files = [args.out / MODEL, args.out / STATE]
+    held = [f for f in files if f.exists()]
+    if args.evaluate or args.resume:
+        if len(held) < len(files):
+            parser.error(f"{args.out} holds no whole run: it needs {MODEL} and {STATE}")
+    elif held and not args.overwrite:
+        parser.error(f"{args.out} holds a run: --resume it or --overwrite it")
     if args.evaluate:
+        tables = [args.out / "evaluation.md", args.out / "evaluation.csv"]
+        if any(t.exists() for t in tables) and not args.overwrite:
+            parser.error(f"{args.out} holds an evaluation: --overwrite to replace it")
         print(write_tables(evaluate(args.out, args.episodes, seed=1), args.out))
         return
-    held = (args.out / MODEL).exists()
-    if held and not (args.resume or args.overwrite):
-        parser.error(f"{args.out} holds a run: --resume it or --overwrite it")
-    if args.resume and not held:
-        parser.error(f"--resume: {args.out} holds no run ({MODEL}, {STATE})")
     torch.set_num_threads(1)  # one core: the machine has two
     args.out.mkdir(parents=True, exist_ok=True)
     train(args.out, args.total_frames, args.frames_per_level, args.checkpoint_every,
