@@ -1,27 +1,38 @@
-"""Env-steps per second of the batched env, raw step and collector path, against the numpy
-reference, on any device.
+"""Env-steps per second of the batched env on the paths a torchrl user runs, beside the raw
+step and the numpy reference, on any device.
 
-    python -m benchmarks.throughput                      # CPU, N = 1 .. 16384
-    python -m benchmarks.throughput --device cuda --sizes 1024 16384 262144 1048576 \\
-        --modes eager compiled cudagraphs --profile 262144 --profile-out profile.txt
+    python -m benchmarks.throughput                      # CPU, N = 1,024 / 4,096 / 16,384
+    python -m benchmarks.throughput --device cuda --sizes 16384 262144 1048576 \\
+        --modes compiled cudagraphs --profile 262144 --profile-out profile.txt
 
-Two paths per N, each in the modes asked for (eager; compiled: ``compile_step=True``;
+Paths per N, each in the modes asked for (eager; compiled: ``compile_step=True``;
 cudagraphs: compiled with ``mode="reduce-overhead"``, CUDA only):
-- step: ``ParkingEnv._step`` (action check, the step pipeline, the output TensorDict: what a
-  collector calls once per batched step, without torchrl's bookkeeping), each call going on
-  from the last (ended rows step on unreset: the work has static shapes, whatever the state);
-- collector: ``env.step_and_maybe_reset`` with uniform random actions, as a collector or
-  ``env.rollout`` calls it: episodes end (mostly collisions) and the ended rows reset.
+- step: ``ParkingEnv._step`` (action check, the step, the output TensorDict: what a collector
+  calls once per batched step, without torchrl's bookkeeping), each call going on from the
+  last (ended rows step on unreset: the work has static shapes, whatever the state);
+- step_and_maybe_reset: ``env.step_and_maybe_reset`` with uniform random actions, as
+  ``env.rollout`` and the collectors call it: episodes end (mostly collisions) and the ended
+  rows reset;
+- rollout: ``env.rollout`` of ``--horizon`` steps with random actions, going on from the last;
+- collector: a torchrl ``Collector`` of the ``fast`` preset (its aids, transforms, and its
+  actor's architecture at its initial weights) at occupancy 0.5, batches of N x ``--horizon``
+  env steps: **frames/s** (steps of dt, 5 per env step, as the trainer's
+  ``time/collect_fps``);
+- reset: ``ParkingEnv._reset`` of a share of the rows (0.1 %, 1 %, 10 %, 100 %), ms per
+  call and its ratio to one raw step, over enough calls to include the batched draws of
+  the episodes handed out (their share of the cost).
 Timed with CUDA events on CUDA (the host clock elsewhere) over ``--calls`` calls after a
 warm-up, best of ``--repeats``. On CUDA also the peak memory per env and the host
 synchronisations per call (``torch.cuda.set_sync_debug_mode``). ``--profile N`` writes a
-``torch.profiler`` table of the compiled collector path at N. Prints Markdown tables and
-the ratios against the reference's single-env step, measured in the same run.
+``torch.profiler`` table of the compiled ``step_and_maybe_reset`` path at N. Prints Markdown
+tables and the ratios against the raw step and the reference's single-env step, measured in
+the same run.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import platform
 import time
 import warnings
@@ -36,6 +47,8 @@ from tests.reference import ReferenceParkingEnv  # run from the repository root 
 from torchpark import ParkingEnv
 
 MODES = {"eager": None, "compiled": {}, "cudagraphs": {"mode": "reduce-overhead"}}
+PATHS = ("step", "step_and_maybe_reset", "rollout", "collector", "reset")
+RESET_SHARES = (0.001, 0.01, 0.1, 1.0)
 
 
 def make_env(num_envs: int, device: str, mode: str, occupancy: float,
@@ -54,7 +67,7 @@ def random_actions(num_envs: int, device: str, count: int = 16) -> list[torch.Te
             for _ in range(count)]
 
 
-def step_call(env: ParkingEnv) -> Callable[[], None]:
+def step_call(env: ParkingEnv, args) -> Callable[[], None]:
     """One raw step, going on from the last one's state."""
     env.reset()
     td = TensorDict({"action": random_actions(env.num_envs, env.device, 1)[0]},
@@ -66,7 +79,7 @@ def step_call(env: ParkingEnv) -> Callable[[], None]:
     return call
 
 
-def collector_call(env: ParkingEnv) -> Callable[[], None]:
+def step_and_maybe_reset_call(env: ParkingEnv, args) -> Callable[[], None]:
     """One ``step_and_maybe_reset`` with random actions, going on from the last one."""
     actions = random_actions(env.num_envs, env.device)
     td = env.reset()
@@ -79,6 +92,72 @@ def collector_call(env: ParkingEnv) -> Callable[[], None]:
         count += 1
 
     return call
+
+
+def rollout_call(env: ParkingEnv, args) -> Callable[[], None]:
+    """One ``env.rollout`` of ``args.horizon`` random steps, going on from the last one."""
+    td = env.reset()
+
+    def call() -> None:
+        nonlocal td
+        rollout = env.rollout(args.horizon, auto_reset=False, tensordict=td,
+                              break_when_any_done=False)
+        td = rollout[..., -1]["next"].exclude("reward", "done", "terminated", "truncated")
+
+    return call
+
+
+def reset_call(share: float) -> Callable[[ParkingEnv, argparse.Namespace], Callable[[], None]]:
+    """A reset of round(share x N) rows (at least one), the same rows each call."""
+
+    def make(env: ParkingEnv, args) -> Callable[[], None]:
+        env.reset()
+        count = max(1, round(share * env.num_envs))
+        gen = torch.Generator().manual_seed(1)
+        rows = torch.randperm(env.num_envs, generator=gen)[:count].to(env.device)
+        mask = torch.zeros(env.num_envs, 1, dtype=torch.bool, device=env.device)
+        mask[rows] = True
+        td = TensorDict({"_reset": mask}, batch_size=[env.num_envs], device=env.device)
+
+        def call() -> None:
+            env._reset(td)
+
+        return call
+
+    return make
+
+
+def collector_frames(num_envs: int, device: str, mode: str, args):
+    """A call that collects one batch of the ``fast`` preset's Collector, and the frames (steps
+    of dt) in that batch."""
+    from torchrl.collectors import Collector
+
+    from trainers.config import load_config
+    from trainers.utils import NORMALISED, make_ppo_models
+    from trainers.utils import make_env as make_train_env
+
+    if mode == "cudagraphs":
+        raise ValueError("the fast preset compiles without CUDA graphs")
+    cfg = load_config("fast", [f"env.num_envs={num_envs}", f"env.device={device}",
+                               f"env.compile_step={mode == 'compiled'}",
+                               f"curriculum.levels=[{args.occupancy}]"])
+    env = make_train_env(cfg)
+    actor, _ = make_ppo_models(env.observation_spec[NORMALISED].shape[-1], env.action_spec,
+                               cfg.model)
+    collector = Collector(env, actor.to(device), frames_per_batch=num_envs * args.horizon,
+                          total_frames=-1, device=device)
+    env.base_env.randomize_step_counts()  # as the trainer does: timeouts spread out
+    batches = iter(collector)
+
+    def call() -> None:
+        next(batches)
+
+    return call, cfg.agent.action_repeat * args.horizon * num_envs
+
+
+CALLS = {"step": step_call, "step_and_maybe_reset": step_and_maybe_reset_call,
+         "rollout": rollout_call,
+         **{f"reset {share:g}": reset_call(share) for share in RESET_SHARES}}
 
 
 def seconds_per_call(call: Callable[[], None], device: str, calls: int) -> float:
@@ -110,33 +189,64 @@ def syncs_per_call(call: Callable[[], None], calls: int = 8) -> float:
     return sum("synchroniz" in str(w.message) for w in caught) / calls
 
 
+def timed(call: Callable[[], None], units: int, device: str, calls: int, args
+          ) -> dict[str, float]:
+    """Units per second of ``call`` (best and worst of ``args.repeats``) and seconds per call
+    (best), after ``args.warmup`` calls."""
+    for _ in range(args.warmup):  # compile, record graphs, warm the caches
+        call()
+    seconds = [seconds_per_call(call, device, calls) for _ in range(args.repeats)]
+    result = {"rate": units / min(seconds), "low": units / max(seconds), "seconds": min(seconds)}
+    if device.startswith("cuda"):
+        result["syncs"] = syncs_per_call(call)
+    return result
+
+
+def expand_paths(paths: list[str]) -> list[str]:
+    """The path names, with ``reset`` as one entry per share."""
+    return [p for path in paths
+            for p in ([f"reset {s:g}" for s in RESET_SHARES] if path == "reset" else [path])]
+
+
 def measure(num_envs: int, device: str, mode: str, paths: list[str], args
             ) -> dict[str, dict[str, float]]:
-    """Each path's figures at ``num_envs`` in ``mode``, from one env (one compilation)."""
+    """Each path's figures at ``num_envs`` in ``mode``: rate (env-steps/s; frames/s for the
+    collector; resets/s for a reset), low, seconds per call, and on CUDA bytes per env and
+    host syncs per call. One env (one compilation) for every path but the collector."""
     cuda = device.startswith("cuda")
     torch._dynamo.reset()  # every size compiled on its own, with static shapes
     if cuda:
         torch.cuda.empty_cache()
         torch.cuda.reset_peak_memory_stats()
-    results = {}
+    results: dict[str, dict[str, float]] = {}
+    env_paths = [p for p in expand_paths(paths) if p != "collector"]
     try:
-        env = make_env(num_envs, device, mode, args.occupancy, validate=not args.no_validate)
+        env = make_env(num_envs, device, mode, args.occupancy,
+                       validate=not args.no_validate) if env_paths else None
     except Exception as err:
-        return {path: {"error": describe(err)} for path in paths}
-    for path in paths:
+        return {path: {"error": describe(err)} for path in expand_paths(paths)}
+    for path in env_paths:
         try:
-            call = (step_call if path == "step" else collector_call)(env)
-            for _ in range(args.warmup):  # compile, record graphs, warm the caches
-                call()
-            rates = [num_envs / seconds_per_call(call, device, args.calls)
-                     for _ in range(args.repeats)]
+            call = CALLS[path](env, args)
+            if path.startswith("reset"):
+                # Calls enough to hand out every episode drawn ahead twice: the figure is
+                # the reset's cost with its share of the batched draws.
+                units, calls = 1, max(args.calls, math.ceil(2 / float(path.split()[1])))
+            elif path == "rollout":
+                units, calls = num_envs * args.horizon, max(1, args.calls // args.horizon)
+            else:
+                units, calls = num_envs, args.calls
+            results[path] = timed(call, units, device, calls, args)
         except Exception as err:  # a mode that cannot run here is reported, not fatal
             results[path] = {"error": describe(err)}
-            continue
-        results[path] = {"rate": max(rates), "low": min(rates)}
-        if cuda:
+        if cuda and "rate" in results[path]:
             results[path]["bytes_per_env"] = torch.cuda.max_memory_allocated() / num_envs
-            results[path]["syncs"] = syncs_per_call(call)
+    if "collector" in paths:
+        try:
+            call, frames = collector_frames(num_envs, device, mode, args)
+            results["collector"] = timed(call, frames, device, max(1, args.calls // 8), args)
+        except Exception as err:
+            results["collector"] = {"error": describe(err)}
     return results
 
 
@@ -165,12 +275,12 @@ def reference_steps_per_second(occupancy: float, seconds: float, repeats: int) -
 
 
 def profile(num_envs: int, device: str, args, path: Path) -> None:
-    """torch.profiler table of the compiled collector path (after warm-up)."""
+    """torch.profiler table of the compiled ``step_and_maybe_reset`` path (after warm-up)."""
     from torch.profiler import ProfilerActivity
     from torch.profiler import profile as torch_profile
 
     env = make_env(num_envs, device, "compiled", args.occupancy, validate=not args.no_validate)
-    call = collector_call(env)
+    call = step_and_maybe_reset_call(env, args)
     for _ in range(args.warmup):
         call()
     activities = [ProfilerActivity.CPU]
@@ -184,20 +294,55 @@ def profile(num_envs: int, device: str, args, path: Path) -> None:
             torch.cuda.synchronize()
     sort = "cuda_time_total" if device.startswith("cuda") else "cpu_time_total"
     table = prof.key_averages().table(sort_by=sort, row_limit=25)
-    path.write_text(f"collector path, compiled, N = {num_envs}, 20 calls\n{table}\n")
+    path.write_text(f"step_and_maybe_reset, compiled, N = {num_envs}, 20 calls\n{table}\n")
     print(f"profile of N = {num_envs:,} written to {path}")
+
+
+def cell(result: dict[str, float], fmt: str = ",.0f") -> str:
+    return f"{result['rate']:{fmt}} [{result['low']:{fmt}}]" if "rate" in result \
+        else result["error"]
+
+
+def tables(n: int, mode: str, results: dict[str, dict[str, float]], reference: float,
+           cuda: bool) -> tuple[str, str]:
+    """One row of the paths table and one of the resets table for N in ``mode``."""
+    step = results.get("step", {})
+
+    def ratio(path: str) -> str:
+        return f"{results[path]['rate'] / step['rate']:.2f}" \
+            if "rate" in results.get(path, {}) and "rate" in step else "-"
+
+    paths = [p for p in ("step", "step_and_maybe_reset", "rollout") if p in results]
+    row = f"| {n:,} | {mode} | " + " | ".join(
+        f"{cell(results[p])} ({ratio(p)})" if p != "step" else cell(results[p])
+        for p in paths)
+    if "collector" in results:
+        row += f" | {cell(results['collector'])}"
+    row += " | " + (f"{step['rate'] / reference:,.0f}x |" if "rate" in step else "- |")
+    if cuda and "rate" in step:
+        row += f" {step['bytes_per_env'] / 2**20:.4f} | {step['syncs']:.1f} |"
+    resets = [p for p in results if p.startswith("reset")]
+    reset_row = ""
+    if resets:
+        reset_row = f"| {n:,} | {mode} | " + (f"{1e3 * step['seconds']:.2f} | " if "seconds"
+                                              in step else "- | ") + " | ".join(
+            f"{1e3 * results[p]['seconds']:.2f} ({results[p]['seconds'] / step['seconds']:.2f})"
+            if "seconds" in results[p] and "seconds" in step else results[p].get("error", "-")
+            for p in resets) + " |"
+    return row, reset_row
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--sizes", type=int, nargs="+", default=[1, 64, 1024, 4096, 16384])
-    parser.add_argument("--modes", nargs="+", default=["eager", "compiled"], choices=MODES)
-    parser.add_argument("--paths", nargs="+", default=["step", "collector"],
-                        choices=("step", "collector"))
+    parser.add_argument("--sizes", type=int, nargs="+", default=[1024, 4096, 16384])
+    parser.add_argument("--modes", nargs="+", default=["compiled"], choices=MODES)
+    parser.add_argument("--paths", nargs="+", default=list(PATHS), choices=PATHS)
     parser.add_argument("--occupancy", type=float, default=0.5)
-    parser.add_argument("--calls", type=int, default=50, help="calls per measurement")
-    parser.add_argument("--warmup", type=int, default=5)
+    parser.add_argument("--calls", type=int, default=32, help="env steps per measurement")
+    parser.add_argument("--horizon", type=int, default=16,
+                        help="env steps per rollout and per collector batch (per env)")
+    parser.add_argument("--warmup", type=int, default=3)
     parser.add_argument("--repeats", type=int, default=3,
                         help="measurements per figure; the best is reported (the machine's "
                              "speed drifts, and noise only ever slows a run down)")
@@ -218,30 +363,27 @@ def main() -> None:
     refs = reference_steps_per_second(args.occupancy, 2.0, args.repeats)
     reference = max(refs)
     print(f"reference (numpy, one env): {reference:,.0f} steps/s (best of {spread(refs)})")
-    print(f"env-steps/s, best of {args.repeats} x {args.calls} calls; the range in brackets\n")
-    head = "| path | N | " + " | ".join(args.modes) + " | best / reference |"
-    extra = " ms per call (best) | MB per env | host syncs per call |" if cuda else ""
-    print(head + extra)
-    print("|---" * (len(args.modes) + 3 + (3 if cuda else 0)) + "|")
-    rows = {path: [] for path in args.paths}
+    print(f"best of {args.repeats} measurements, the worst in brackets\n")
+    shown = [p for p in ("step", "step_and_maybe_reset", "rollout") if p in args.paths]
+    head = ("| N | mode | " + " | ".join(
+        f"{p} env-steps/s" + ("" if p == "step" else " (/ step)") for p in shown)
+        + (" | collector (fast preset) frames/s" if "collector" in args.paths else "")
+        + " | step / reference |" + (" MB per env | host syncs per step |" if cuda else ""))
+    head = head + "\n" + "|---" * head.count(" | ") + "|---|"
+    reset_head = ("| N | mode | step ms | " + " | ".join(
+        f"reset {100 * s:g} % ms (/ step)" for s in RESET_SHARES) + " |\n"
+        + "|---" * (3 + len(RESET_SHARES)) + "|")
+    rows, reset_rows = [], []
     for n in args.sizes:
-        results = {mode: measure(n, args.device, mode, args.paths, args) for mode in args.modes}
-        for path in args.paths:
-            by_mode = {mode: results[mode][path] for mode in args.modes}
-            cells = [f"{r['rate']:,.0f} [{r['low']:,.0f}]" if "rate" in r else r["error"]
-                     for r in by_mode.values()]
-            good = [r for r in by_mode.values() if "rate" in r]
-            best = max(good, key=lambda r: r["rate"]) if good else None
-            row = f"| {path} | {n:,} | " + " | ".join(cells) + " | " + (
-                f"{best['rate'] / reference:,.0f}x |" if best else "- |")
-            if cuda and best:
-                row += (f" {1e3 * n / best['rate']:.3f} | {best['bytes_per_env'] / 2**20:.4f} "
-                        f"| {best['syncs']:.1f} |")
-            rows[path].append(row)
-            print(row, flush=True)
-    rule = "|---" * (len(args.modes) + 3 + (3 if cuda else 0)) + "|"
-    print("\n" + head + extra + "\n" + rule + "\n"
-          + "\n".join(row for path in args.paths for row in rows[path]))
+        for mode in args.modes:
+            row, reset_row = tables(n, mode, measure(n, args.device, mode, args.paths, args),
+                                    reference, cuda)
+            rows.append(row)
+            reset_rows.append(reset_row)
+            print(row, "\n" + reset_row if reset_row else "", flush=True)
+    print("\n" + head + "\n" + "\n".join(rows))
+    if any(reset_rows):
+        print("\n" + reset_head + "\n" + "\n".join(r for r in reset_rows if r))
     if args.profile:
         profile(args.profile, args.device, args, args.profile_out)
 

@@ -4,6 +4,11 @@ The class is plumbing: specs, seeding, action checks, the reset's mask, and disp
 paper's step and reset (:mod:`torchpark.sim.step`), or to the aided ones
 (:mod:`torchpark.aids.step`) when it is given an :class:`AidsConfig`. Pictures come from
 :mod:`torchpark.media`, imported on first use.
+
+A reset costs what it resets: the env draws N new episodes at a time (lots, start poses,
+first observations: one batched, compiled call) and hands them out in order, each once, to
+the rows that reset, writing those rows in place. The other rows are not touched, so a reset
+of B rows costs a gather and a scatter of B rows, plus 1/N of a batch draw per row.
 """
 
 from __future__ import annotations
@@ -20,21 +25,21 @@ from torchrl.envs import EnvBase
 
 from torchpark.aids.brake import steer_angles
 from torchpark.aids.config import AidsConfig
-from torchpark.aids.repeat import hold, merge_steps
+from torchpark.aids.repeat import hold
 from torchpark.aids.starts import draw_near
 from torchpark.aids.step import (
     BRAKE_KEYS,
     DOCKING_KEYS,
     AidedState,
     AidState,
-    aided_reset,
+    aided_new_episodes,
     aided_step,
 )
 from torchpark.config import ParkingConfig, check_flag, check_occupancy, is_integer, is_number
 from torchpark.sim.episodes import draw_lots
 from torchpark.sim.layout import build_layout
-from torchpark.sim.observation import observation_dim
-from torchpark.sim.step import ParkingState, mux_rows, parking_step, place, reset_rows
+from torchpark.sim.observation import observation_dim, observe
+from torchpark.sim.step import ParkingState, new_episodes, parking_step, put_rows_, take_rows
 from torchpark.sim.world import World, build_world
 
 # torch.compile keeps the graphs of every compiled partial function in the cache of one
@@ -61,7 +66,7 @@ class ParkingEnv(EnvBase):
         config: a :class:`ParkingConfig`; the paper's task by default.
         aids: an :class:`~torchpark.aids.config.AidsConfig` of agent-side aids (held actions,
             emergency brake, docking law, near-goal starts); None (default): the paper's env.
-        compile_step: run the step and the reset's tensor work through
+        compile_step: run the step and the batched draw of new episodes through
             ``torch.compile(fullgraph=True)``. Worth it from a few hundred envs on (several times
             faster on CPU); the first step then takes tens of seconds to compile.
         compile_kwargs: passed to ``torch.compile``.
@@ -83,7 +88,8 @@ class ParkingEnv(EnvBase):
     With the brake also braked (N, 1) bool (it stopped the last step of dt) and interventions
     (N, 1) int64 (steps of dt it stopped or steered this episode); with the docking law
     docking_engaged (N, 1) bool (it drives this episode). Setting :attr:`occupancy` applies
-    to lots drawn at later resets.
+    to lots drawn at later resets (episodes drawn ahead at another occupancy are discarded,
+    as they are on reseeding).
     """
 
     batch_locked = True
@@ -123,20 +129,23 @@ class ParkingEnv(EnvBase):
         self._world = build_world(self.layout, cfg)
         if aids is None:
             step = partial(parking_step, world=self._world, cfg=cfg)
-            reset = partial(reset_rows, world=self._world, cfg=cfg)
+            reset = partial(new_episodes, world=self._world, cfg=cfg)
         else:
             angles = steer_angles(cfg, aids.brake, self.device) if aids.brake is not None \
                 else torch.empty(0, device=self.device)
             step = partial(aided_step, world=self._world, steer_angles=angles, cfg=cfg,
                            aids=aids)
-            reset = partial(aided_reset, world=self._world, cfg=cfg)
-        functions = [step, reset, merge_steps, partial(place, world=self._world, cfg=cfg)]
+            reset = partial(aided_new_episodes, world=self._world, cfg=cfg)
+        # A held action's steps of dt are one function (one graph when compiled).
+        step = hold(step, self.action_repeat)
         if compile_step:
             _allow_recompiles()
-            functions = [torch.compile(f, fullgraph=True, **(compile_kwargs or {}))
-                         for f in functions]
-        step, self._reset_fn, merge, self._place_fn = functions
-        self._step_fn = hold(step, merge, self.action_repeat)
+            kwargs = {"fullgraph": True, **(compile_kwargs or {})}
+            step, reset = (torch.compile(f, **kwargs) for f in (step, reset))
+        self._step_fn = step
+        # The reset's work: N new episodes at a time (lots, start poses, first observations),
+        # drawn ahead and handed out in order, each once, to the rows that reset.
+        self._draw_ahead = reset
         # The aids' output keys this env emits.
         self._aid_keys = () if aids is None else (
             (BRAKE_KEYS if aids.brake is not None else ())
@@ -144,11 +153,10 @@ class ParkingEnv(EnvBase):
         self._make_specs()
         self._generator = torch.Generator(device=self.device)
         self._set_seed(seed)
-        m = self._world.obstacles.cx.shape[0]
-        self._keep(ParkingState.zeros(num_envs, m, self.device),
-                   AidState.zeros(num_envs, self.device))
-        self._observation = torch.zeros(num_envs, self.obs_dim, device=self.device)
-        self._cost = torch.zeros(num_envs, device=self.device)
+        self._state, self._observation, self._cost = self._zeros()
+        # Episodes drawn ahead (a state of N rows, observations, costs); the first
+        # `_ahead_used` of them are handed out.
+        self._ahead, self._ahead_used = self._zeros(), num_envs
         self._started = False  # no lot drawn yet: reset() first
         self._renderer = None  # a media.rendering.LotRenderer, made on the first picture
 
@@ -167,7 +175,10 @@ class ParkingEnv(EnvBase):
 
     @occupancy.setter
     def occupancy(self, value: float) -> None:
-        self._occupancy = check_occupancy(value, "occupancy")
+        value = check_occupancy(value, "occupancy")
+        if value != self._occupancy:
+            self._ahead_used = self.num_envs  # lots drawn ahead at another occupancy: unused
+        self._occupancy = value
 
     @property
     def success_threshold(self) -> float:
@@ -181,7 +192,11 @@ class ParkingEnv(EnvBase):
 
     def set_success_threshold(self, value: float | torch.Tensor) -> None:
         """Set the success test's threshold on C from the next step on: a finite number > 0,
-        or a 0-d tensor (copied on device, no host sync, so it is not checked)."""
+        or a 0-d tensor (copied on device, no host sync, so it is not checked). With
+        near-goal starts, which are drawn clear of the success test, the episodes drawn ahead
+        are discarded."""
+        if self.aids is not None and self.aids.near_goal_starts is not None:
+            self._ahead_used = self.num_envs
         if isinstance(value, torch.Tensor):
             if value.dim() != 0 or not value.is_floating_point():
                 raise ValueError(f"success_threshold must be a 0-d float tensor, got shape "
@@ -231,6 +246,7 @@ class ParkingEnv(EnvBase):
         if seed is None:
             seed = int(torch.randint(0, 2**62, (), dtype=torch.int64))
         self._generator.manual_seed(int(seed))
+        self._ahead_used = self.num_envs  # later lots come from the new seed
 
     @property
     def world(self) -> World:
@@ -240,19 +256,37 @@ class ParkingEnv(EnvBase):
 
     @property
     def state(self) -> ParkingState:
-        """The paper's per-env state (read-only view for analysis and tests)."""
-        return self._state.sim if self.aids is not None else self._state
+        """A copy of the paper's per-env state (for analysis and tests; later steps and resets
+        do not change it)."""
+        return ParkingState(*(t.clone() for t in self._sim))
 
     @property
     def aid_state(self) -> AidState | None:
-        """The aids' per-env state (None without aids)."""
+        """A copy of the aids' per-env state (None without aids)."""
+        return None if self.aids is None else AidState(*(t.clone() for t in self._aids))
+
+    @property
+    def _sim(self) -> ParkingState:
+        """The paper's state, the env's own tensors (a reset writes its rows in place)."""
+        return self._state.sim if self.aids is not None else self._state
+
+    @property
+    def _aids(self) -> AidState | None:
         return self._state.aids if self.aids is not None else None
 
     def _keep(self, sim: ParkingState, aid: AidState | None = None) -> None:
         """Hold the paper's state and, with aids, the aids' (``aid``; the current one by
         default)."""
         self._state = sim if self.aids is None else AidedState(
-            sim, self.aid_state if aid is None else aid)
+            sim, self._aids if aid is None else aid)
+
+    def _write_rows(self, index: torch.Tensor, state: tuple, observation: torch.Tensor,
+                    cost: torch.Tensor) -> None:
+        """Write B new rows (a state of the env's kind, observation (B, D), cost (B,)) into
+        the rows ``index`` (B,) int64, in place: the other rows are not touched."""
+        put_rows_(self._state, index, state)
+        self._observation.index_copy_(0, index, observation)
+        self._cost.index_copy_(0, index, cost)
 
     def set_state(self, state: ParkingState, rows: torch.Tensor | None = None) -> TensorDictBase:
         """Put the rows ``rows`` ((N,) bool; default all) in the given paper state (a
@@ -262,7 +296,7 @@ class ParkingEnv(EnvBase):
         tests and analysis: nothing checks that the state is a valid start."""
         if not isinstance(state, ParkingState):
             raise TypeError(f"state must be a ParkingState, got {type(state).__name__}")
-        for name, new, old in zip(ParkingState._fields, state, self.state, strict=True):
+        for name, new, old in zip(ParkingState._fields, state, self._sim, strict=True):
             if not isinstance(new, torch.Tensor) or new.shape != old.shape \
                     or new.dtype != old.dtype or new.device != old.device:
                 raise ValueError(f"state.{name} must be a {old.dtype} tensor of shape "
@@ -273,38 +307,70 @@ class ParkingEnv(EnvBase):
                 or rows.numel() != self.num_envs:
             raise ValueError(f"rows must be a bool tensor of {self.num_envs} elements (one per "
                              f"env), got {rows!r}")
-        mask = rows.to(self.device).reshape(self.num_envs)
-        sim, self._observation, self._cost = self._place_fn(self.state, self._observation,
-                                                            self._cost, mask, state)
-        cleared = None if self.aids is None else mux_rows(
-            mask, AidState.zeros(self.num_envs, self.device), self.aid_state)
-        self._keep(sim, cleared)
+        index = rows.to(self.device).reshape(self.num_envs).nonzero()[:, 0]
+        fresh = take_rows(state, index)
+        observation, cost = observe(fresh, self._world, self.config)
+        if self.aids is not None:
+            fresh = AidedState(fresh, AidState.zeros(index.shape[0], self.device))
+        self._write_rows(index, fresh, observation, cost)
         self._started = True
         return self._reset_output()
 
-    def snapshot(self) -> dict[str, torch.Tensor | float | bool]:
+    def _zeros(self) -> tuple:
+        """A state of the env's kind holding no lot, with its observation and cost: zeros."""
+        n, m = self.num_envs, self._world.obstacles.cx.shape[0]
+        sim = ParkingState.zeros(n, m, self.device)
+        return (sim if self.aids is None else AidedState(sim, AidState.zeros(n, self.device)),
+                torch.zeros(n, self.obs_dim, device=self.device),
+                torch.zeros(n, device=self.device))
+
+    def _flat(self, state: tuple, observation: torch.Tensor, cost: torch.Tensor,
+              prefix: str = "") -> dict[str, torch.Tensor]:
+        """A state of the env's kind with its observation and cost as named copies."""
+        sim, aid = (state, None) if self.aids is None else state
+        fields = {f"{prefix}state.{k}": v for k, v in zip(ParkingState._fields, sim,
+                                                           strict=True)}
+        if aid is not None:
+            fields |= {f"{prefix}aids.{k}": v for k, v in zip(AidState._fields, aid,
+                                                              strict=True)}
+        fields |= {f"{prefix}observation": observation, f"{prefix}cost": cost}
+        return {k: v.clone() for k, v in fields.items()}
+
+    def _unflat(self, fields: dict, prefix: str = "") -> tuple:
+        """The inverse of :meth:`_flat`: (state, observation, cost), copied to the device (the
+        env writes its tensors in place, never the caller's)."""
+        def get(name: str) -> torch.Tensor:
+            return fields[prefix + name].to(self.device, copy=True)
+
+        sim = ParkingState(*(get(f"state.{k}") for k in ParkingState._fields))
+        state = sim if self.aids is None else AidedState(
+            sim, AidState(*(get(f"aids.{k}") for k in AidState._fields)))
+        return state, get("observation"), get("cost")
+
+    def snapshot(self) -> dict[str, torch.Tensor | float | bool | int]:
         """Everything the env's future depends on, as plain tensors and numbers (safe for
         ``torch.save`` and ``torch.load(weights_only=True)``): every lot's state (and the
-        aids'), the last observation and cost, the random generator, the occupancy of later
-        lots and the success threshold. :meth:`restore` continues exactly from it."""
-        fields = {f"state.{k}": v for k, v in zip(ParkingState._fields, self.state,
-                                                   strict=True)}
-        if self.aids is not None:
-            fields |= {f"aids.{k}": v for k, v in zip(AidState._fields, self.aid_state,
-                                                      strict=True)}
-        return {**{k: v.clone() for k, v in fields.items()},
-                "observation": self._observation.clone(), "cost": self._cost.clone(),
+        aids'), the last observation and cost, the episodes drawn ahead and how many of them
+        are handed out, the random generator, the occupancy of later lots and the success
+        threshold. :meth:`restore` continues exactly from it."""
+        return {**self._flat(self._state, self._observation, self._cost),
+                **self._flat(*self._ahead, prefix="ahead."), "ahead_used": self._ahead_used,
                 "generator": self._generator.get_state(), "occupancy": self._occupancy,
                 "success_threshold": self._world.success_threshold.clone(),
                 "started": self._started}
 
     def restore(self, snapshot: dict) -> None:
         """Continue exactly from a :meth:`snapshot` of an env built the same way (same
-        ``num_envs``, config and aids). ValueError naming the entry when it does not fit."""
+        ``num_envs``, config and aids). ValueError naming the entry when it does not fit. A
+        snapshot of an older version, without episodes drawn ahead, continues with none."""
         if not isinstance(snapshot, dict):
             raise TypeError(f"snapshot must be a dict from ParkingEnv.snapshot, got "
                             f"{type(snapshot).__name__}")
         expected = self.snapshot()
+        if not any(k.startswith("ahead") for k in snapshot):  # an older version's
+            snapshot = {**snapshot, **{k: v for k, v in expected.items()
+                                       if k.startswith("ahead.")},
+                        "ahead_used": self.num_envs}
         missing = sorted(set(expected) - set(snapshot))
         if missing or set(snapshot) - set(expected):
             raise ValueError(f"snapshot must hold exactly {sorted(expected)}; missing "
@@ -316,16 +382,17 @@ class ParkingEnv(EnvBase):
                     or theirs.dtype != ours.dtype):
                 raise ValueError(f"snapshot[{key!r}] must be a {ours.dtype} tensor of shape "
                                  f"{tuple(ours.shape)}, got {theirs!r}")
-        sim = ParkingState(*(snapshot[f"state.{k}"].to(self.device)
-                             for k in ParkingState._fields))
-        self._keep(sim, None if self.aids is None else AidState(
-            *(snapshot[f"aids.{k}"].to(self.device) for k in AidState._fields)))
-        self._observation = snapshot["observation"].to(self.device)
-        self._cost = snapshot["cost"].to(self.device)
+        used = snapshot["ahead_used"]
+        if not is_integer(used) or not 0 <= used <= self.num_envs:
+            raise ValueError(f"snapshot['ahead_used'] must be an int in [0, {self.num_envs}], "
+                             f"got {used!r}")
+        state, self._observation, self._cost = self._unflat(snapshot)
+        self._keep(*((state,) if self.aids is None else state))
         self._generator.set_state(snapshot["generator"])
         self.occupancy = snapshot["occupancy"]
         self.set_success_threshold(snapshot["success_threshold"].to(self.device))
         self._started = check_flag(snapshot["started"], "snapshot['started']")
+        self._ahead, self._ahead_used = self._unflat(snapshot, "ahead."), int(used)
 
     def randomize_step_counts(self) -> None:
         """Set every env's step count to a uniform draw in [0, max_steps), from the env's
@@ -337,7 +404,7 @@ class ParkingEnv(EnvBase):
         """
         steps = torch.randint(self.config.max_steps, (self.num_envs,),
                               generator=self._generator, device=self.device)
-        self._keep(self.state._replace(steps=steps))
+        self._keep(self._sim._replace(steps=steps))
 
     # ------------------------------------------------------------------ pictures
     def render(self, index: int = 0) -> np.ndarray:
@@ -364,15 +431,15 @@ class ParkingEnv(EnvBase):
 
         if self._renderer is None:
             self._renderer = LotRenderer(self.layout, self.config)
-        return picture_envs(self._renderer, self.state, self._observation, indices, columns)
+        return picture_envs(self._renderer, self._sim, self._observation, indices, columns)
 
     # ------------------------------------------------------------------ EnvBase hooks
     def _outputs(self, **fields: torch.Tensor) -> TensorDictBase:
-        aid = self.aid_state
-        aid_outputs = {key: getattr(aid, key)[:, None] for key in self._aid_keys}
+        # Copies: a later reset writes the env's tensors in place.
+        aid_outputs = {key: getattr(self._aids, key)[:, None].clone() for key in self._aid_keys}
         return TensorDict(
             {**fields, "observation": self._observation.clone(),  # the caller's, not our buffer
-             "cost": self._cost[:, None].clone(), "occupancy": self.state.occupancy[:, None],
+             "cost": self._cost[:, None].clone(), "occupancy": self._sim.occupancy[:, None].clone(),
              **aid_outputs},
             batch_size=self.batch_size, device=self.device,
         )
@@ -383,23 +450,35 @@ class ParkingEnv(EnvBase):
                              terminated=no.clone(), truncated=no.clone())
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
-        n, dev = self.num_envs, self.device
+        n = self.num_envs
         if tensordict is not None and "_reset" in tensordict.keys() and self._started:
-            mask = tensordict.get("_reset").reshape(n)
+            # The rows to reset: the reset's one read-back (their count; on CUDA a sync,
+            # beside the one torchrl makes for done.any()).
+            index = tensordict.get("_reset").reshape(n).nonzero()[:, 0]
         else:  # the first reset draws every row, whatever the mask
-            mask = torch.ones(n, dtype=torch.bool, device=dev)
-        # Every row draws a new lot; the masked rows take it (torch.where, no sync), the
-        # others keep their state bit for bit.
+            index = torch.arange(n, device=self.device)
+        count = index.shape[0]
+        if count > n - self._ahead_used:
+            self._draw_episodes_ahead()
+        # The next `count` episodes drawn ahead, in the order of the rows' indices.
+        taken = slice(self._ahead_used, self._ahead_used + count)
+        self._write_rows(index, *take_rows(self._ahead, taken))
+        self._ahead_used += count
+        self._started = True
+        return self._reset_output()
+
+    def _draw_episodes_ahead(self) -> None:
+        """Draw N new episodes (lots at the current occupancy, start poses, their first
+        observations) from the env's generator, in one batch, replacing those not handed
+        out yet."""
+        n = self.num_envs
         lots = draw_lots(n, self._occupancy, self.layout, self.config.lot, self._generator)
         draws = (lots,)
         if self.aids is not None:
             near = self.aids.near_goal_starts
             draws += (None if near is None else draw_near(self._world.goal_poses[lots.goal_slot],
                                                           near, self._generator),)
-        self._state, self._observation, self._cost = self._reset_fn(
-            self._state, self._observation, self._cost, mask, *draws)
-        self._started = True
-        return self._reset_output()
+        self._ahead, self._ahead_used = self._draw_ahead(*draws), 0
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         if not self._started:

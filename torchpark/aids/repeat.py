@@ -12,7 +12,6 @@ from torch import Tensor
 from torchpark.sim.step import StepResult, mux_rows
 
 StepFn = Callable[[tuple, Tensor], tuple[tuple, StepResult, Tensor]]
-MergeFn = Callable[[tuple, StepResult, tuple, StepResult], tuple[tuple, StepResult]]
 
 
 def merge_steps(state: tuple, out: StepResult, new_state: tuple, new_out: StepResult
@@ -28,16 +27,17 @@ def merge_steps(state: tuple, out: StepResult, new_state: tuple, new_out: StepRe
         cost=torch.minimum(out.cost, merged.cost))
 
 
-def hold(step: StepFn, merge: MergeFn, repeat: int) -> StepFn:
-    """``step`` with each action held for ``repeat`` steps of dt (``merge``: :func:`merge_steps`,
-    compiled or not). Returns ``step`` itself when ``repeat`` is 1."""
+def hold(step: StepFn, repeat: int) -> StepFn:
+    """``step`` with each action held for ``repeat`` steps of dt, merged by
+    :func:`merge_steps` (one function: one graph when compiled). Returns ``step`` itself when
+    ``repeat`` is 1."""
     if repeat == 1:
         return step
 
     def held(state: tuple, action: Tensor) -> tuple[tuple, StepResult, Tensor]:
         state, out, finite = step(state, action)
         for _ in range(repeat - 1):
-            state, out = merge(state, out, *step(state, action)[:2])
+            state, out = merge_steps(state, out, *step(state, action)[:2])
         return state, out, finite
 
     return held

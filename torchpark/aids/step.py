@@ -15,7 +15,8 @@ from torchpark.aids.docking import take_over
 from torchpark.aids.starts import NearDraw, near_start
 from torchpark.config import ParkingConfig
 from torchpark.sim.episodes import LotDraw
-from torchpark.sim.step import ParkingState, StepResult, commit, move, mux_rows, new_lots, place
+from torchpark.sim.observation import observe
+from torchpark.sim.step import ParkingState, StepResult, commit, move, new_lots
 from torchpark.sim.vehicle import clamp_action
 from torchpark.sim.world import World
 
@@ -76,15 +77,14 @@ def aided_step(state: AidedState, action: Tensor, world: World, steer_angles: Te
     return AidedState(sim, aid), out, action.isfinite().all()
 
 
-def aided_reset(state: AidedState, observation: Tensor, cost: Tensor, mask: Tensor,
-                lots: LotDraw, near: NearDraw | None, world: World, cfg: ParkingConfig
-                ) -> tuple[AidedState, Tensor, Tensor]:
-    """The paper's reset with the aids' state cleared, and with ``near`` (near-goal starts)
-    preferred to the uniform start where it asks."""
+def aided_new_episodes(lots: LotDraw, near: NearDraw | None, world: World, cfg: ParkingConfig
+                       ) -> tuple[AidedState, Tensor, Tensor]:
+    """The paper's reset of B rows (:func:`~torchpark.sim.step.new_episodes`) with the aids'
+    state cleared, and with ``near`` (near-goal starts, B rows) preferred to the uniform
+    start where it asks."""
     fresh = new_lots(lots, world, cfg)
     if near is not None:
         fresh = fresh._replace(pose=near_start(fresh.pose, near, fresh.goal, fresh.present,
                                                world, cfg))
-    sim, observation, cost = place(state.sim, observation, cost, mask, fresh, world, cfg)
-    cleared = AidState.zeros(mask.shape[0], mask.device)
-    return AidedState(sim, mux_rows(mask, cleared, state.aids)), observation, cost
+    return (AidedState(fresh, AidState.zeros(fresh.pose.shape[0], fresh.pose.device)),
+            *observe(fresh, world, cfg))

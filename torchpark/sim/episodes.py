@@ -1,6 +1,8 @@
 """Per-episode draws of the paper's procedural lots: the goal slot, which other slots hold
-parked cars, and the start pose. Each function takes the env's ``torch.Generator``; the draws
-are made for every row (static shapes) and the reset keeps the rows it resets."""
+parked cars, and the start pose. The random numbers are drawn from the env's
+``torch.Generator`` for the rows being reset only (:func:`draw_lots`, eager: a compiled graph
+cannot take a generator); what is made of them (:func:`occupied_slots`, :func:`choose_start`)
+is pure tensor work on those rows, compiled with the reset."""
 
 from __future__ import annotations
 
@@ -12,64 +14,62 @@ from torch import Tensor
 
 from torchpark.config import LotConfig, VehicleConfig
 from torchpark.sim.geometry import OrientedBoxes
-from torchpark.sim.layout import LotLayout, start_pose_valid, uniform_poses
+from torchpark.sim.layout import LotLayout, lot_poses, start_pose_valid
 
 
 class StartDraw(NamedTuple):
-    """Random inputs of :func:`choose_start` for N envs: ``uniform`` (N, K, 3) poses uniform
-    over the lot, ``fallback`` (N, 3) one pose from the pre-drawn valid pool."""
+    """Random inputs of :func:`choose_start` for B rows: ``unit`` (B, K, 3) uniform in
+    [0, 1) (K uniform candidate poses, scaled to the lot by :func:`choose_start`), ``pick``
+    (B,) int64 a uniform index into the lot's pool of valid starts (the fallback)."""
 
-    uniform: Tensor
-    fallback: Tensor
+    unit: Tensor
+    pick: Tensor
 
 
 class LotDraw(NamedTuple):
-    """N new lots: ``goal_slot`` (N,) int64, ``occupied`` (N, S) bool (which slots hold a
-    parked car), ``occupancy`` (N,) float32 (the occupancy they were drawn with) and ``start``
-    the start poses' random inputs."""
+    """Random inputs of B new lots: ``goal_slot`` (B,) int64 uniform over the slots;
+    ``keys`` (B, S) float32 uniform in [0, 1), whose ``parked`` (B,) int64 smallest among the
+    non-goal slots hold a parked car; ``occupancy`` (B,) float32 the occupancy they were
+    drawn with; ``start`` the start poses' random inputs."""
 
     goal_slot: Tensor
-    occupied: Tensor
+    keys: Tensor
+    parked: Tensor
     occupancy: Tensor
     start: StartDraw
 
 
-def draw_goals_and_cars(num_envs: int, num_slots: int, occupancy: float,
-                        generator: torch.Generator, device: torch.device
-                        ) -> tuple[Tensor, Tensor]:
-    """Goal slot per env and which slots hold a parked car.
-
-    Returns goal (N,) int64 uniform over the slots, and occupied (N, S) bool with exactly
-    round_half_up(occupancy * (S - 1)) of the non-goal slots, drawn uniformly, set.
-    """
-    goal = torch.randint(num_slots, (num_envs,), generator=generator, device=device)
-    parked = math.floor(occupancy * (num_slots - 1) + 0.5)
-    keys = torch.rand(num_envs, num_slots, generator=generator, device=device)
-    # The goal gets the largest key, so it is never among the `parked` smallest.
-    keys = keys.scatter(1, goal[:, None], 2.0)
-    rank = keys.argsort(dim=1).argsort(dim=1)
-    return goal, rank < parked
-
-
-def draw_starts(num_envs: int, layout: LotLayout, lot: LotConfig, generator: torch.Generator
-                ) -> StartDraw:
-    """The random draws of one reset's start poses for ``num_envs`` envs."""
-    device = layout.slots.device
-    pick = torch.randint(layout.start_pool.shape[0], (num_envs,), generator=generator,
-                         device=device)
-    uniform = uniform_poses(layout, (num_envs, lot.start_candidates), generator)
-    return StartDraw(uniform, layout.start_pool[pick])
+def parked_cars(occupancy: float, num_slots: int) -> int:
+    """The number of parked cars at ``occupancy``: round_half_up(occupancy * (S - 1)), in
+    float64 (the spec's count, whatever the device's float32 rounding)."""
+    return math.floor(occupancy * (num_slots - 1) + 0.5)
 
 
 def draw_lots(num_envs: int, occupancy: float, layout: LotLayout, lot: LotConfig,
               generator: torch.Generator) -> LotDraw:
-    """``num_envs`` new lots at ``occupancy``: goals, parked cars, start draws, in that order
-    from ``generator``."""
+    """The random inputs of ``num_envs`` new lots at ``occupancy``: goals, car keys, start
+    candidates and fallback picks, in that order from ``generator``."""
     device = layout.slots.device
-    goal, occupied = draw_goals_and_cars(num_envs, layout.num_slots, occupancy, generator,
-                                         device)
-    start = draw_starts(num_envs, layout, lot, generator)
-    return LotDraw(goal, occupied, torch.full((num_envs,), occupancy, device=device), start)
+    n, s = num_envs, layout.num_slots
+    goal = torch.randint(s, (n,), generator=generator, device=device)
+    keys = torch.rand(n, s, generator=generator, device=device)
+    pick = torch.randint(layout.start_pool.shape[0], (n,), generator=generator, device=device)
+    unit = torch.rand(n, lot.start_candidates, 3, generator=generator, device=device)
+    return LotDraw(goal, keys, torch.full((n,), parked_cars(occupancy, s), device=device),
+                   torch.full((n,), occupancy, device=device), StartDraw(unit, pick))
+
+
+def occupied_slots(goal_slot: Tensor, keys: Tensor, parked: Tensor) -> Tensor:
+    """Which slots hold a parked car, (B, S) bool: the ``parked`` (B,) non-goal slots with
+    the smallest ``keys`` (B, S), so exactly ``parked`` of them, a uniform subset. Each
+    slot's rank among the others by a pairwise comparison (ties broken by index; an (S, S)
+    loop per row that compiles into one kernel, where a sort would not)."""
+    slots = torch.arange(keys.shape[1], device=keys.device)
+    # The goal's key is above every other, so it is never among the `parked` smallest.
+    keys = torch.where(slots == goal_slot[:, None], 2.0, keys)
+    a, b = keys[:, :, None], keys[:, None, :]  # slot i against slot j
+    before = (b < a) | ((b == a) & (slots[None, :] < slots[:, None]))
+    return before.sum(-1) < parked[:, None]
 
 
 def first_valid(candidates: Tensor, valid: Tensor) -> tuple[Tensor, Tensor]:
@@ -84,16 +84,19 @@ def first_valid(candidates: Tensor, valid: Tensor) -> tuple[Tensor, Tensor]:
     return chosen, valid.any(dim=1, keepdim=True)
 
 
-def choose_start(draw: StartDraw, blocked: OrientedBoxes, vehicle: VehicleConfig) -> Tensor:
-    """Start poses (N, 3): each env's first valid uniform candidate, else its fallback.
+def choose_start(draw: StartDraw, extent: Tensor, pool: Tensor, blocked: OrientedBoxes,
+                 vehicle: VehicleConfig) -> Tensor:
+    """Start poses (B, 3): each row's first valid uniform candidate (rear axle uniform over
+    the lot [0, width] x [0, height], ``extent`` (2,), heading uniform in [-pi, pi)), else its
+    fallback from ``pool`` (P, 3) of valid poses.
 
-    The fallback comes from the pool of valid poses, so the result is always valid; the work
-    is bounded by N x K x B box tests. Conditioned on one uniform candidate being valid, the
-    uniform pose is uniform over the valid poses.
+    The result is always valid; the work is bounded by B x K x (S + 4) box tests.
+    Conditioned on one uniform candidate being valid, the pose is uniform over the valid
+    poses (and the pool is a uniform sample of them).
     """
-    start = draw.fallback
-    if draw.uniform.shape[1] > 0:
-        chosen, found = first_valid(draw.uniform, start_pose_valid(draw.uniform, blocked,
-                                                                   vehicle))
+    start = pool[draw.pick]
+    if draw.unit.shape[1] > 0:
+        uniform = lot_poses(draw.unit, extent)
+        chosen, found = first_valid(uniform, start_pose_valid(uniform, blocked, vehicle))
         start = torch.where(found, chosen, start)
     return start

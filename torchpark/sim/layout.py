@@ -156,14 +156,20 @@ def build_layout(lot: LotConfig, vehicle: VehicleConfig, device: torch.device | 
     return LotLayout(**{**layout.__dict__, "start_pool": pool})
 
 
+def lot_poses(unit: Tensor, extent: Tensor) -> Tensor:
+    """Rear-axle poses [..., 3] from draws ``unit`` [..., 3] uniform in [0, 1): uniform over
+    the lot rectangle [0, width] x [0, height] (``extent`` (2,) float32), heading uniform in
+    [-pi, pi)."""
+    scale = torch.cat((extent, extent.new_tensor([2.0 * math.pi])))
+    return unit * scale + extent.new_tensor([0.0, 0.0, -math.pi])
+
+
 def uniform_poses(layout: LotLayout, shape: tuple[int, ...], generator: torch.Generator
                   ) -> Tensor:
     """Rear-axle poses [*shape, 3] uniform over the lot rectangle, heading uniform in [-pi, pi)."""
     device = layout.slots.device
-    u = torch.rand(*shape, 3, generator=generator, device=device)
-    scale = torch.tensor([layout.width, layout.height, 2.0 * math.pi], device=device)
-    offset = torch.tensor([0.0, 0.0, -math.pi], device=device)
-    return u * scale + offset
+    extent = torch.tensor([layout.width, layout.height], device=device)
+    return lot_poses(torch.rand(*shape, 3, generator=generator, device=device), extent)
 
 
 def start_pose_valid(poses: Tensor, blocked: OrientedBoxes, vehicle: VehicleConfig) -> Tensor:

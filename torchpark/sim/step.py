@@ -1,10 +1,12 @@
 """The paper's batched step and reset as pure tensor functions (no Python branching on tensor
 values, no host sync, static shapes), composed from vehicle, geometry, lidar and reward.
 
-``ParkingEnv`` binds the constants with ``functools.partial`` and may ``torch.compile`` them
-with ``fullgraph=True``. The agent-side aids (:mod:`torchpark.aids`) compose these same
-pieces (:func:`move`, :func:`commit`, :func:`new_lots`, :func:`place`); nothing here knows
-about them.
+The step works on all N rows; the reset (:func:`new_episodes`) on the B rows being reset,
+which ``ParkingEnv`` gathers and writes back in place (:func:`put_rows_`), so a reset costs
+what it resets. ``ParkingEnv`` binds the constants with ``functools.partial`` and may
+``torch.compile`` them with ``fullgraph=True``. The agent-side aids (:mod:`torchpark.aids`)
+compose these same pieces (:func:`move`, :func:`commit`, :func:`new_lots`); nothing here
+knows about them.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import torch
 from torch import Tensor
 
 from torchpark.config import ParkingConfig
-from torchpark.sim.episodes import LotDraw, choose_start
+from torchpark.sim.episodes import LotDraw, choose_start, occupied_slots
 from torchpark.sim.observation import observe
 from torchpark.sim.reward import is_success, parking_reward
 from torchpark.sim.vehicle import bicycle_step, clamp_action, vehicle_obb
@@ -121,37 +123,45 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
 
 
 def new_lots(lots: LotDraw, world: World, cfg: ParkingConfig) -> ParkingState:
-    """The states (N rows) of freshly drawn lots: at rest at their start poses, no step
+    """The states (B rows) of freshly drawn lots: at rest at their start poses, no step
     taken."""
-    occupied = lots.occupied
-    walls = torch.ones(occupied.shape[0], world.obstacles.cx.shape[0] - occupied.shape[1],
-                       device=occupied.device)
+    occupied = occupied_slots(lots.goal_slot, lots.keys, lots.parked)
+    b, device = occupied.shape[0], occupied.device
+    walls = torch.ones(b, world.obstacles.cx.shape[0] - occupied.shape[1], device=device)
     return ParkingState(
-        pose=choose_start(lots.start, world.slots_and_walls, cfg.vehicle),
-        speed=torch.zeros(occupied.shape[0], device=occupied.device),
+        pose=choose_start(lots.start, world.extent, world.start_pool, world.slots_and_walls,
+                          cfg.vehicle),
+        speed=torch.zeros(b, device=device),
         goal_slot=lots.goal_slot,
         goal=world.goal_poses[lots.goal_slot],
         present=torch.cat((occupied.to(walls.dtype), walls), dim=-1),
-        steps=torch.zeros(occupied.shape[0], dtype=torch.int64, device=occupied.device),
+        steps=torch.zeros(b, dtype=torch.int64, device=device),
         occupancy=lots.occupancy,
     )
 
 
-def place(state: ParkingState, observation: Tensor, cost: Tensor, mask: Tensor,
-          fresh: ParkingState, world: World, cfg: ParkingConfig
-          ) -> tuple[ParkingState, Tensor, Tensor]:
-    """``fresh`` where ``mask`` (N,) is set, ``state`` elsewhere, with the observation (N, D)
-    and cost C (N,) of the rows taken from ``fresh``; the other rows' state, observation and
-    cost are returned untouched, bit for bit. Every row is computed and muxed with
-    ``torch.where``: static shapes and no host sync."""
-    state = mux_rows(mask, fresh, state)
-    new_observation, new_cost = observe(state, world, cfg)
-    return (state, torch.where(mask[:, None], new_observation, observation),
-            torch.where(mask, new_cost, cost))
+def take_rows(rows: tuple, index: Tensor | slice) -> tuple:
+    """Field by field, the rows ``index`` ((B,) int64, or a slice: views) of tuples and
+    NamedTuples (nested ones too) of [N, ...] tensors: [B, ...]."""
+    taken = (take_rows(t, index) if isinstance(t, tuple) else t[index] for t in rows)
+    return type(rows)(*taken) if hasattr(rows, "_fields") else tuple(taken)
 
 
-def reset_rows(state: ParkingState, observation: Tensor, cost: Tensor, mask: Tensor,
-               lots: LotDraw, world: World, cfg: ParkingConfig
-               ) -> tuple[ParkingState, Tensor, Tensor]:
-    """The paper's reset: the drawn ``lots`` for the rows where ``mask`` (N,) is set."""
-    return place(state, observation, cost, mask, new_lots(lots, world, cfg), world, cfg)
+def put_rows_(rows: tuple, index: Tensor, new: tuple) -> None:
+    """Field by field, write ``new`` ([B, ...]) into the rows ``index`` (B,) int64 of
+    ``rows`` ([N, ...] tensors), in place: the work is that of the B rows, every other row is
+    untouched. An index may repeat only where its new rows are equal (the result then does
+    not depend on the order of the writes)."""
+    for t, n in zip(rows, new, strict=True):
+        if isinstance(t, tuple):
+            put_rows_(t, index, n)
+        else:
+            t.index_copy_(0, index, n)
+
+
+def new_episodes(lots: LotDraw, world: World, cfg: ParkingConfig
+                 ) -> tuple[ParkingState, Tensor, Tensor]:
+    """The paper's reset of B rows: the states of the B drawn ``lots`` (:func:`new_lots`),
+    their first observation (B, D) and cost C (B,)."""
+    fresh = new_lots(lots, world, cfg)
+    return (fresh, *observe(fresh, world, cfg))

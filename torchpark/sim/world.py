@@ -20,13 +20,15 @@ class World(NamedTuple):
     """Constants shared by every env. obstacles: OrientedBoxes (M,) = S parked-car boxes then
     4 walls; rotation: LIDAR line rotation (2, 2 * lines); goal_poses: (S, 3) rear-axle goal
     pose of each slot; slots_and_walls: OrientedBoxes (S + 4,) that a start pose must not
-    touch; extent: (2,) the lot's width and height, m; success_threshold: () the success
+    touch; start_pool: (P, 3) valid start poses (the start sampler's fallback); extent: (2,)
+    the lot's width and height, m; success_threshold: () the success
     test's threshold on C, a tensor so that changing it in place needs no recompilation."""
 
     obstacles: OrientedBoxes
     rotation: Tensor
     goal_poses: Tensor
     slots_and_walls: OrientedBoxes
+    start_pool: Tensor
     extent: Tensor
     success_threshold: Tensor
 
@@ -40,6 +42,7 @@ def build_world(layout: LotLayout, cfg: ParkingConfig) -> World:
         rotation=line_rotation(cfg.lidar.n_rays, device),
         goal_poses=layout.goal_poses,
         slots_and_walls=layout.slots_and_walls,
+        start_pool=layout.start_pool,
         extent=torch.tensor([layout.width, layout.height], device=device),
         success_threshold=torch.tensor(cfg.reward.success_threshold, dtype=torch.float32,
                                        device=device),
