@@ -10,6 +10,7 @@ from torchrl.envs import TransformedEnv
 
 from torchpark import (
     AidsConfig,
+    NearGoalStarts,
     OccupancyCurriculum,
     ParkingEnv,
     SuccessCurriculum,
@@ -165,6 +166,22 @@ def test_success_curriculum_state_dict_round_trip():
     assert resumed.base_env.success_threshold == pytest.approx(2.5e3)
     assert resumed.transform.frames_seen == 20
     assert float(resumed.transform.ended) == float(env.transform.ended) == 4.0
+
+
+def test_success_curriculum_pushes_only_a_new_threshold():
+    """Resets do not re-push an unchanged threshold: with near-goal starts a new threshold
+    discards the env's episodes drawn ahead, so a partial reset would otherwise draw N new
+    ones each time (the generator would move)."""
+    env = TransformedEnv(ParkingEnv(8, seed=0, aids=AidsConfig(near_goal_starts=NearGoalStarts())),
+                         SuccessCurriculum(1e-3, window=10**6))
+    td = env.reset()
+    mask = torch.zeros(8, 1, dtype=torch.bool)
+    mask[2] = True
+    env.reset(td.clone().set("_reset", mask))  # draws 8 episodes ahead, hands out one
+    generator = env.base_env.snapshot()["generator"]
+    env.reset(td.clone().set("_reset", mask))  # the next one, drawn ahead
+    assert torch.equal(env.base_env.snapshot()["generator"], generator)
+    assert env.base_env.success_threshold == pytest.approx(1e-3)
 
 
 def test_success_threshold_reaches_a_compiled_step():

@@ -48,6 +48,7 @@ class SuccessCurriculum(FrameCountingTransform):
         self.register_buffer("threshold", torch.tensor(float(start)))
         self.register_buffer("ended", torch.zeros(()))
         self.register_buffer("succeeded", torch.zeros(()))
+        self._stale = True  # the env does not hold this threshold yet
 
     @property
     def success_threshold(self) -> float:
@@ -55,9 +56,17 @@ class SuccessCurriculum(FrameCountingTransform):
         return float(self.threshold)
 
     def _push(self) -> None:
+        # Only a new threshold is pushed (before the first reset, after a window's decision
+        # or a load): with near-goal starts, the env discards its episodes drawn ahead on
+        # each new threshold.
         container = self.container
-        if container is not None:
+        if container is not None and self._stale:
             container.base_env.set_success_threshold(self.threshold)
+            self._stale = False
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        self._stale = True
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
               ) -> TensorDictBase:
@@ -71,6 +80,7 @@ class SuccessCurriculum(FrameCountingTransform):
             self.threshold.copy_(torch.where(rate >= self.target, tighter, self.threshold))
             self.ended.zero_()
             self.succeeded.zero_()
+            self._stale = True
             self._push()
         return next_tensordict
 
