@@ -14,8 +14,9 @@ cudagraphs: compiled with ``mode="reduce-overhead"``, CUDA only):
   ``env.rollout`` and the collectors call it: episodes end (mostly collisions) and the ended
   rows reset;
 - rollout: ``env.rollout`` of ``--horizon`` steps with random actions, going on from the last;
-- collector: a torchrl ``Collector`` of the ``fast`` preset (its aids, transforms, and its
-  actor's architecture at its initial weights) at occupancy 0.5, batches of N x ``--horizon``
+- collector: a torchrl ``Collector`` of the ``fast`` preset (its aids, transforms, its
+  actor's architecture at its initial weights, compiled as the preset compiles it) at
+  occupancy 0.5, batches of N x ``--horizon``
   env steps: **frames/s** (steps of dt, 5 per env step, as the trainer's
   ``time/collect_fps``);
 - reset: ``ParkingEnv._reset`` of a share of the rows (0.1 %, 1 %, 10 %, 100 %), ms per
@@ -145,7 +146,8 @@ def collector_frames(num_envs: int, device: str, mode: str, args):
     actor, _ = make_ppo_models(env.observation_spec[NORMALISED].shape[-1], env.action_spec,
                                cfg.model)
     collector = Collector(env, actor.to(device), frames_per_batch=num_envs * args.horizon,
-                          total_frames=-1, device=device)
+                          total_frames=-1, device=device,
+                          compile_policy=cfg.collector.compile_policy and mode != "eager")
     env.base_env.randomize_step_counts()  # as the trainer does: timeouts spread out
     batches = iter(collector)
 

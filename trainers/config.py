@@ -96,6 +96,9 @@ class CurriculumConfig:
 class CollectorConfig:
     frames_per_batch: int = 2048
     total_frames: int = 12_000_000
+    # torch.compile the policy inside the collector (torchrl's compile_policy): at thousands
+    # of envs, the policy's TensorDict modules cost as much Python as the env's step.
+    compile_policy: bool = False
 
 
 @dataclass
@@ -164,7 +167,7 @@ def _fast() -> TrainConfig:
                           emergency_brake=True, steer_clear=5, observe_brake=True,
                           docking=True),
         train=TrainAidsConfig(near_goal_starts=0.5),
-        collector=CollectorConfig(frames_per_batch=1024 * 32 * 5),
+        collector=CollectorConfig(frames_per_batch=1024 * 32 * 5, compile_policy=True),
         loss=LossConfig(gamma=0.995, mini_batch_size=1024, ppo_epochs=8, reward_scale=0.1),
         model=ModelConfig(hidden=[256, 256], init_log_std=-1.0, state_dependent_std=True),
         logger=LoggerConfig(exp_name="fast"),

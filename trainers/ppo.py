@@ -156,7 +156,8 @@ def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) 
 
     # The collector counts env steps; frames are steps of dt.
     collector = Collector(env, actor, frames_per_batch=cfg.collector.frames_per_batch // repeat,
-                          total_frames=remaining // repeat, device=cfg.env.device)
+                          total_frames=remaining // repeat, device=cfg.env.device,
+                          compile_policy=cfg.collector.compile_policy)
     if checkpoint is None:
         # After the collector's reset: spread the first timeouts over [1, max_steps] steps.
         env.base_env.randomize_step_counts()
