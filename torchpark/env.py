@@ -145,7 +145,7 @@ class ParkingEnv(EnvBase):
         self._step_fn = step
         # The reset's work: N new episodes at a time (lots, start poses, first observations),
         # drawn ahead and handed out in order, each once, to the rows that reset.
-        self._draw_ahead = reset
+        self._new_episodes = reset
         # The aids' output keys this env emits.
         self._aid_keys = () if aids is None else (
             (BRAKE_KEYS if aids.brake is not None else ())
@@ -478,7 +478,7 @@ class ParkingEnv(EnvBase):
             near = self.aids.near_goal_starts
             draws += (None if near is None else draw_near(self._world.goal_poses[lots.goal_slot],
                                                           near, self._generator),)
-        self._ahead, self._ahead_used = self._draw_ahead(*draws), 0
+        self._ahead, self._ahead_used = self._new_episodes(*draws), 0
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         if not self._started:
