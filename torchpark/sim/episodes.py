@@ -1,8 +1,8 @@
 """Per-episode draws of the paper's procedural lots: the goal slot, which other slots hold
 parked cars, and the start pose. The random numbers are drawn from the env's
-``torch.Generator`` for the rows being reset only (:func:`draw_lots`, eager: a compiled graph
-cannot take a generator); what is made of them (:func:`occupied_slots`, :func:`choose_start`)
-is pure tensor work on those rows, compiled with the reset."""
+``torch.Generator`` for the episodes the env draws ahead (:func:`draw_lots`, eager: a compiled
+graph cannot take a generator); what is made of them (:func:`occupied_slots`,
+:func:`choose_start`) is pure tensor work, compiled with the batched draw."""
 
 from __future__ import annotations
 

@@ -1,12 +1,12 @@
 """The paper's batched step and reset as pure tensor functions (no Python branching on tensor
 values, no host sync, static shapes), composed from vehicle, geometry, lidar and reward.
 
-The step works on all N rows; the reset (:func:`new_episodes`) on the B rows being reset,
-which ``ParkingEnv`` gathers and writes back in place (:func:`put_rows_`), so a reset costs
-what it resets. ``ParkingEnv`` binds the constants with ``functools.partial`` and may
-``torch.compile`` them with ``fullgraph=True``. The agent-side aids (:mod:`torchpark.aids`)
-compose these same pieces (:func:`move`, :func:`commit`, :func:`new_lots`); nothing here
-knows about them.
+The step works on all N rows; :func:`new_episodes` makes B new episodes, which
+``ParkingEnv`` draws N at a time and writes into the rows it resets in place
+(:func:`put_rows_`), so a reset costs what it resets. ``ParkingEnv`` binds the constants
+with ``functools.partial`` and may ``torch.compile`` them with ``fullgraph=True``. The
+agent-side aids (:mod:`torchpark.aids`) compose these same pieces (:func:`move`,
+:func:`commit`, :func:`new_lots`); nothing here knows about them.
 """
 
 from __future__ import annotations
