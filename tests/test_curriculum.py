@@ -106,6 +106,19 @@ def test_bad_arguments_raise(kwargs, match):
         OccupancyCurriculum(**kwargs)
 
 
+def test_replicas_count_the_frames_of_every_copy():
+    # One of 3 copies stepping in lockstep: each step counts 3 x 8 frames.
+    env = TransformedEnv(ParkingEnv(8, seed=0), OccupancyCurriculum(frames_per_level=48,
+                                                                    replicas=3))
+    td = env.reset()
+    for step in range(1, 5):
+        td = env.rand_step(td)["next"]
+        assert env.transform.frames_seen == 24 * step
+    assert env.transform.phase == 3 and env.base_env.occupancy == PAPER_LEVELS[2]
+    with pytest.raises(ValueError, match="replicas must be an int >= 1"):
+        OccupancyCurriculum(replicas=0)
+
+
 def test_held_actions_count_as_several_frames():
     env = TransformedEnv(ParkingEnv(6, seed=0, aids=AidsConfig(action_repeat=5)),
                          OccupancyCurriculum(frames_per_level=60))
@@ -154,6 +167,27 @@ def test_success_rate_is_the_windows_own():
     for _ in range(2):
         td = env.rand_step(td)["next"]
     assert env.base_env.success_threshold == pytest.approx(5e3)
+
+
+def test_success_rate_is_reduced_over_the_replicas():
+    # This copy sees no success (C never below 1e-9); the reduce adds another copy's window
+    # of 8 episodes, all successes: the decision is taken on both and tightens.
+    calls = []
+
+    def reduce(counts):  # stands in for torch.distributed.all_reduce
+        calls.append(counts.clone())
+        counts.add_(torch.tensor([8.0, 8.0]))
+
+    env = make_success(2, 1e-9, final=1e-12, factor=0.5, target=0.5, window=8, replicas=2,
+                       reduce=reduce)
+    td = env.reset()
+    for _ in range(2):
+        td = env.rand_step(td)["next"]
+    assert len(calls) == 1 and calls[0][1] == 0  # once per window, this copy's counts
+    assert env.base_env.success_threshold == pytest.approx(5e-10)
+    alone = make_success(2, 1e-9, final=1e-12, factor=0.5, target=0.5, window=8, replicas=2)
+    alone.rollout(2, break_when_any_done=False)
+    assert alone.base_env.success_threshold == pytest.approx(1e-9)
 
 
 def test_success_curriculum_state_dict_round_trip():
@@ -211,6 +245,7 @@ def test_bad_success_threshold_raises(value):
     ({"start": True}, "start must be a finite number"),
     ({"factor": float("nan")}, "factor must be a finite number"),
     ({"target": "0.5"}, "target must be a finite number"),
+    ({"reduce": 3}, "reduce must be None or a callable"),
 ])
 def test_success_curriculum_bad_arguments_raise(kwargs, match):
     with pytest.raises(ValueError, match=match):

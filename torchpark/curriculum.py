@@ -26,10 +26,16 @@ class FrameCountingTransform(Transform):
     """A transform that counts frames (env steps summed over the batch, ``action_repeat``
     frames each) in a buffer mirrored by a Python int, so that no step reads a device tensor
     and ``state_dict``/``load_state_dict`` carry and resume the count, and that sets its
-    value in the base env (``_push``) before each reset and after a load."""
+    value in the base env (``_push``) before each reset and after a load.
 
-    def __init__(self) -> None:
+    ``replicas``: how many envs of this batch size step in lockstep with this one in the run
+    (data-parallel ranks x collector workers, each with its own copy of the transform); each
+    step counts their frames too, so every copy follows the run's global frame count.
+    """
+
+    def __init__(self, replicas: int = 1) -> None:
         super().__init__()
+        self.replicas = frame_count("replicas", replicas)
         self.register_buffer("frames", torch.zeros((), dtype=torch.int64))
         self._frames = 0
 
@@ -43,7 +49,7 @@ class FrameCountingTransform(Transform):
         container = self.container
         repeat = container.base_env.action_repeat if container is not None else 1
         before = self._frames
-        self._frames += next_tensordict.numel() * repeat
+        self._frames += next_tensordict.numel() * repeat * self.replicas
         self.frames.fill_(self._frames)  # an async fill from a host int: no sync
         return before
 
@@ -70,11 +76,13 @@ class OccupancyCurriculum(FrameCountingTransform):
     count is also mirrored in a Python int, so no step reads a device tensor (no host sync).
 
     Build a fresh transform (or none) for an evaluation env: ``clone()`` shares the buffer.
+    With ``replicas`` copies of the env in lockstep (see :class:`FrameCountingTransform`)
+    the schedule follows the frames of all of them.
     """
 
     def __init__(self, levels: Sequence[float] = PAPER_LEVELS,
-                 frames_per_level: int = 2_000_000) -> None:
-        super().__init__()
+                 frames_per_level: int = 2_000_000, replicas: int = 1) -> None:
+        super().__init__(replicas)
         levels = tuple(levels)
         if not levels:
             raise ValueError("levels must hold at least one occupancy, got an empty sequence")

@@ -134,6 +134,29 @@ class LoggerConfig:
     checkpoint_every: int = 1_000_000  # frames
 
 
+# torchrl's collector backends (``Collector(..., backend=...)``) dist.collectors may name.
+# Not "distributed": torchrl 0.14's DistributedCollector reaches no worker-side state (its
+# map_fn runs on the learner, its state_dict raises NotImplementedError), so the workers'
+# normalisers could not be merged nor a checkpoint's state loaded into them; rpc starts its
+# workers on the same torch.distributed launcher and reaches them.
+COLLECTOR_BACKENDS = ("direct", "process", "ray", "rpc")
+
+
+@dataclass
+class DistConfig:
+    """Where the run's work goes (README, "Scaling out"). The config's batch sizes and env
+    count are global: each of ``world_size`` data-parallel ranks steps ``num_envs /
+    world_size`` envs and trains on its share of every minibatch (gradients all-reduced), and
+    each rank's collection is split over ``num_collectors`` workers of torchrl's backend."""
+
+    # Data-parallel ranks (torch.distributed; launched by torchrun, or by the trainer itself).
+    world_size: int = 1
+    # "direct": the rank steps its envs itself; "process", "ray", "rpc": num_collectors
+    # workers of torchrl's backend step them (COLLECTOR_BACKENDS).
+    collectors: str = "direct"
+    num_collectors: int = 1
+
+
 @dataclass
 class TrainConfig:
     env: EnvConfig = field(default_factory=EnvConfig)
@@ -145,6 +168,7 @@ class TrainConfig:
     optim: OptimConfig = field(default_factory=OptimConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     logger: LoggerConfig = field(default_factory=LoggerConfig)
+    dist: DistConfig = field(default_factory=DistConfig)
     seed: int = 0
 
 
@@ -332,6 +356,32 @@ def _check(cfg: TrainConfig) -> None:
     if not 1 <= cfg.loss.mini_batch_size <= batch // k:
         raise ValueError(f"loss.mini_batch_size must be in [1, frames_per_batch / action_repeat"
                          f" = {batch // k}], got {cfg.loss.mini_batch_size}")
+    _check_dist(cfg)
+
+
+def _check_dist(cfg: TrainConfig) -> None:
+    """The dist section against the sizes it splits."""
+    d = cfg.dist
+    _require(d.world_size >= 1, "dist.world_size", "an int >= 1", d.world_size)
+    _require(d.collectors != "distributed", "dist.collectors", "direct, process, ray or rpc "
+             "(torchrl 0.14's DistributedCollector reaches no worker-side state, so the "
+             "workers' normalisers could not be kept consistent: use rpc)", d.collectors)
+    _require(d.collectors in COLLECTOR_BACKENDS, "dist.collectors",
+             f"one of {list(COLLECTOR_BACKENDS)}", d.collectors)
+    _require(d.num_collectors >= 1, "dist.num_collectors", "an int >= 1", d.num_collectors)
+    _require(d.collectors != "direct" or d.num_collectors == 1, "dist.num_collectors",
+             "1 with dist.collectors=direct (name a backend for several workers)",
+             d.num_collectors)
+    replicas = d.world_size * d.num_collectors
+    _require(cfg.env.num_envs % replicas == 0, "env.num_envs",
+             f"a multiple of dist.world_size x dist.num_collectors = {replicas}",
+             cfg.env.num_envs)
+    _require(cfg.loss.mini_batch_size % d.world_size == 0, "loss.mini_batch_size",
+             f"a multiple of dist.world_size = {d.world_size} (each rank takes its share)",
+             cfg.loss.mini_batch_size)
+    _require(d.collectors == "direct" or cfg.curriculum.success_start is None,
+             "curriculum.success_start", "None with collector workers (their success counts "
+             "are not shared within a batch)", cfg.curriculum.success_start)
 
 
 __all__ = ["PRESETS", "TrainConfig", "load_config", "replace"]

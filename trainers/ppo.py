@@ -16,7 +16,9 @@ from pathlib import Path
 
 import torch
 from tensordict import TensorDict
+from torch.nn.parallel import DistributedDataParallel
 from torchrl.collectors import Collector
+from torchrl.envs import Compose, TransformedEnv
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 from torchrl.record.loggers import TensorboardLogger
@@ -24,28 +26,41 @@ from tqdm import tqdm
 
 from torchpark import OccupancyCurriculum
 from trainers.checkpoint import RESUME_KEYS, load_checkpoint
+from trainers.collection import RankCollection
 from trainers.config import TrainConfig, load_config, upgrade_saved
-from trainers.utils import NORMALISED, make_env, make_ppo_models
+from trainers.distributed import (
+    World,
+    all_gather,
+    all_reduce_sum_,
+    gather_episodes,
+    gather_to_main,
+    join,
+    launch,
+    launched,
+    leave,
+    rank_seed,
+    standardise_advantage,
+)
+from trainers.utils import NORMALISED, make_base_env, make_ppo_models, policy_input
 
 # Config sections a checkpoint must share with the run that resumes it.
 _MODEL_SECTIONS = ("env", "agent", "train", "model", "curriculum")
 
 
-def episode_stats(batch: TensorDict, repeat: int = 1) -> dict[str, float]:
-    """Means over the episodes that ended in this batch (empty dict when none did). Lengths
+def episode_stats(ended: TensorDict | None, repeat: int = 1) -> dict[str, float]:
+    """Means over the episodes that ended in this batch (``next`` entries of the steps that
+    ended them, ``trainers.distributed.gather_episodes``; empty dict when none did). Lengths
     in steps of dt: env steps x ``repeat`` (the action repeat; the last one may be cut short
     by the episode's end)."""
-    nxt = batch["next"]
-    done = nxt["done"][..., 0]
-    if not bool(done.any()):
+    if ended is None:
         return {}
     return {
-        "episode/reward": nxt["episode_reward"][done].mean().item(),
-        "episode/length": nxt["step_count"][done].float().mean().item() * repeat,
-        "episode/success_rate": nxt["success"][done].float().mean().item(),
-        "episode/collision_rate": nxt["collision"][done].float().mean().item(),
-        "episode/timeout_rate": nxt["truncated"][done].float().mean().item(),
-        "episode/final_distance": nxt["observation"][done][:, :2].norm(dim=-1).median().item(),
+        "episode/reward": ended["episode_reward"].mean().item(),
+        "episode/length": ended["step_count"].float().mean().item() * repeat,
+        "episode/success_rate": ended["success"].float().mean().item(),
+        "episode/collision_rate": ended["collision"].float().mean().item(),
+        "episode/timeout_rate": ended["truncated"].float().mean().item(),
+        "episode/final_distance": ended["observation"][:, :2].norm(dim=-1).median().item(),
     }
 
 
@@ -76,6 +91,37 @@ def check_log_dir(path: Path, resume: str | None, overwrite: bool) -> None:
         f.unlink()
 
 
+def ppo_step(loss_fn: torch.nn.Module, optim: torch.optim.Optimizer, sample: TensorDict,
+             max_grad_norm: float) -> TensorDict:
+    """One gradient step of PPO on a minibatch (``sample``: this rank's share of it); returns
+    the losses. ``loss_fn``: a ``ClipPPOLoss`` built with ``normalize_advantage=False``, or
+    with several ranks the ``DistributedDataParallel`` around it, whose forward all-reduces
+    the gradients. The advantages are standardised here, over the minibatch of all ranks
+    (``standardise_advantage``), so every rank takes the step one process would take on the
+    whole minibatch."""
+    sample.set("advantage", standardise_advantage(sample["advantage"]))
+    losses = loss_fn(sample)
+    total = losses["loss_objective"] + losses["loss_critic"]
+    if "loss_entropy" in losses.keys():
+        total = total + losses["loss_entropy"]
+    total.backward()
+    params = [p for group in optim.param_groups for p in group["params"]]
+    torch.nn.utils.clip_grad_norm_(params, max_grad_norm)
+    optim.step()
+    optim.zero_grad()
+    return losses
+
+
+def check_ranks_agree(modules: list[torch.nn.Module], world: World) -> None:
+    """RuntimeError unless every rank holds the same parameters (a step that bypassed the
+    gradients' all-reduce would part them): checked at each checkpoint."""
+    if not world.parallel:
+        return
+    mine = torch.cat([p.detach().reshape(-1).cpu() for m in modules for p in m.parameters()])
+    if not all(torch.equal(mine, other) for other in all_gather(mine, world)):
+        raise RuntimeError("the ranks' networks differ: their gradients were not all-reduced")
+
+
 def run_state(env, collector: Collector) -> dict:
     """What an exact resume needs beyond the networks, the optimiser and the transforms'
     statistics: every lot's state and the env's generator (``ParkingEnv.snapshot``), the
@@ -93,140 +139,205 @@ def run_state(env, collector: Collector) -> dict:
     return state
 
 
-def resume_state(checkpoint: dict, env, collector: Collector, path: str) -> None:
-    """Put the env, the collector and torch's random state where the checkpoint's run was
-    (after the collector's own reset, which would otherwise have moved them)."""
-    env.load_state_dict(checkpoint["env"])
-    if "sim" not in checkpoint:  # written before exact resumes: new episodes from here
-        print(f"{path}: no env snapshot (an older checkpoint); resuming with fresh episodes")
-        return
-    env.base_env.restore(checkpoint["sim"])
+def resume_state(state: dict, env, collector: Collector) -> None:
+    """Put the env, the collector and torch's random state where a rank of the checkpoint's
+    run was (after the collector's own reset, which would otherwise have moved them);
+    ``state`` is that rank's :func:`run_state`."""
+    env.base_env.restore(state["sim"])
     carrier = collector._carrier
-    carrier.update(type(carrier).from_dict(checkpoint["carrier"], batch_size=carrier.batch_size,
+    carrier.update(type(carrier).from_dict(state["carrier"], batch_size=carrier.batch_size,
                                            device=carrier.device))
-    torch.set_rng_state(checkpoint["rng"])
-    if "cuda_rng" in checkpoint:
-        torch.cuda.set_rng_state(checkpoint["cuda_rng"], env.device)
+    torch.set_rng_state(state["rng"])
+    if "cuda_rng" in state:
+        torch.cuda.set_rng_state(state["cuda_rng"], env.device)
+
+
+def rank_states(checkpoint: dict, cfg: TrainConfig) -> list[dict] | None:
+    """The per-rank run states of a checkpoint, when this run can continue them exactly:
+    written with direct collection by as many ranks as this run has (one rank: the
+    top-level ``sim`` / ``carrier`` / ``rng``; K ranks: ``ranks``)."""
+    if cfg.dist.collectors != "direct":
+        return None
+    states = checkpoint.get("ranks") or ([checkpoint] if "sim" in checkpoint else None)
+    if states is None or len(states) != cfg.dist.world_size:
+        return None
+    return states
+
+
+def prepare(cfg: TrainConfig, resume: str | None, overwrite: bool) -> None:
+    """What is checked before any rank starts: the run directory (:func:`check_log_dir`) and
+    that the checkpoint to resume was trained with the same task, agent and model."""
+    check_log_dir(Path(cfg.logger.log_dir) / cfg.logger.exp_name, resume, overwrite)
+    if resume is None:
+        return
+    saved = upgrade_saved(load_checkpoint(resume, "cpu", RESUME_KEYS)["config"])
+    for section in _MODEL_SECTIONS:
+        now = dataclasses.asdict(getattr(cfg, section))
+        old = saved.get(section, {})
+        differ = {f"{section}.{k}": (old.get(k), now.get(k))
+                  for k in sorted(set(old) | set(now)) if old.get(k) != now.get(k)}
+        if differ:
+            listed = ", ".join(f"{k}={a!r} in the checkpoint, {b!r} now"
+                               for k, (a, b) in differ.items())
+            raise ValueError(f"checkpoint {resume!r} was trained with another {section} "
+                             f"config: {listed}")
 
 
 def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) -> Path:
     """Run PPO; returns the path of the final checkpoint. A run directory that holds another
-    run is refused unless ``overwrite`` (see :func:`check_log_dir`)."""
-    run_dir = Path(cfg.logger.log_dir) / cfg.logger.exp_name
-    check_log_dir(run_dir, resume, overwrite)
-    checkpoint = load_checkpoint(resume, cfg.env.device, RESUME_KEYS) if resume else None
-    if checkpoint is not None:
-        saved = upgrade_saved(checkpoint["config"])
-        for section in _MODEL_SECTIONS:
-            now = dataclasses.asdict(getattr(cfg, section))
-            old = saved.get(section, {})
-            differ = {f"{section}.{k}": (old.get(k), now.get(k))
-                      for k in sorted(set(old) | set(now)) if old.get(k) != now.get(k)}
-            if differ:
-                listed = ", ".join(f"{k}={a!r} in the checkpoint, {b!r} now"
-                                   for k, (a, b) in differ.items())
-                raise ValueError(f"checkpoint {resume!r} was trained with another {section} "
-                                 f"config: {listed}")
-    torch.manual_seed(cfg.seed)
+    run is refused unless ``overwrite`` (see :func:`check_log_dir`).
 
-    env = make_env(cfg)
-    device = torch.device(cfg.env.device)
-    actor, critic = make_ppo_models(env.observation_spec[NORMALISED].shape[-1], env.action_spec,
-                                    cfg.model)
-    actor, critic = actor.to(device), critic.to(device)
-    loss_module = ClipPPOLoss(
-        actor, critic, clip_epsilon=cfg.loss.clip_epsilon,
-        entropy_bonus=cfg.loss.entropy_coef > 0, entropy_coeff=cfg.loss.entropy_coef,
-        critic_coeff=cfg.loss.critic_coef, loss_critic_type="l2", normalize_advantage=True,
-    )
-    advantage = GAE(gamma=cfg.loss.gamma, lmbda=cfg.loss.gae_lambda, value_network=critic,
-                    average_gae=False)
-    optim = torch.optim.Adam(loss_module.parameters(), lr=cfg.optim.lr)
-    frames = 0
-    if checkpoint is not None:
-        actor.load_state_dict(checkpoint["actor"])
-        critic.load_state_dict(checkpoint["critic"])
-        optim.load_state_dict(checkpoint["optim"])
-        frames = checkpoint["frames"]
+    ``dist.world_size`` > 1: data-parallel (``trainers.distributed``). Under a launcher
+    (torchrun) this process is one rank and rank 0 checks the run first; without one, the
+    checks run here and torch's elastic agent starts the ranks.
+    """
+    size = cfg.dist.world_size
+    if launched():
+        world = join(size, cfg.env.device)
+        error = None
+        if world.main:
+            try:
+                prepare(cfg, resume, overwrite)
+            except ValueError as err:
+                error = str(err)
+        error = all_gather(error, world)[0]
+        if error is not None:
+            leave(world)
+            raise ValueError(error)
+        return _train(cfg, resume, world)
+    prepare(cfg, resume, overwrite)
+    if size > 1:
+        return launch(_launched_rank, (cfg, resume), size)
+    return _train(cfg, resume, World(device=torch.device(cfg.env.device)))
+
+
+def _launched_rank(cfg: TrainConfig, resume: str | None) -> Path:
+    """A rank started by :func:`launch` (the run was checked before)."""
+    return _train(cfg, resume, join(cfg.dist.world_size, cfg.env.device))
+
+
+def _train(cfg: TrainConfig, resume: str | None, world: World) -> Path:
+    run_dir = Path(cfg.logger.log_dir) / cfg.logger.exp_name
+    checkpoint = load_checkpoint(resume, world.device, RESUME_KEYS) if resume else None
+    torch.manual_seed(cfg.seed)  # the same initial networks on every rank
+    device = world.device
+    frames = checkpoint["frames"] if checkpoint is not None else 0
     remaining = cfg.collector.total_frames - frames
     repeat = cfg.agent.action_repeat  # frames per env step
     if remaining < cfg.collector.frames_per_batch:
         raise ValueError(f"collector.total_frames={cfg.collector.total_frames} leaves less than "
                          f"one batch after the checkpoint's {frames} frames")
 
-    # The collector counts env steps; frames are steps of dt.
-    collector = Collector(env, actor, frames_per_batch=cfg.collector.frames_per_batch // repeat,
-                          total_frames=remaining // repeat, device=cfg.env.device,
-                          compile_policy=cfg.collector.compile_policy)
+    # The networks' input size and action bounds come from a one-lot env.
+    probe = make_base_env(cfg, training=True, num_envs=1, seed=0)
+    probe_env = TransformedEnv(probe, Compose(*policy_input(cfg, probe)))
+    actor, critic = make_ppo_models(probe_env.observation_spec[NORMALISED].shape[-1],
+                                    probe_env.action_spec, cfg.model)
+    actor, critic = actor.to(device), critic.to(device)
+    # The advantages are standardised over each minibatch of all ranks by ppo_step.
+    loss_module = ClipPPOLoss(
+        actor, critic, clip_epsilon=cfg.loss.clip_epsilon,
+        entropy_bonus=cfg.loss.entropy_coef > 0, entropy_coeff=cfg.loss.entropy_coef,
+        critic_coeff=cfg.loss.critic_coef, loss_critic_type="l2", normalize_advantage=False,
+    )
+    advantage = GAE(gamma=cfg.loss.gamma, lmbda=cfg.loss.gae_lambda, value_network=critic,
+                    average_gae=False)
+    optim = torch.optim.Adam(loss_module.parameters(), lr=cfg.optim.lr)
+    if checkpoint is not None:
+        actor.load_state_dict(checkpoint["actor"])
+        critic.load_state_dict(checkpoint["critic"])
+        optim.load_state_dict(checkpoint["optim"])
+    # Only DDP's forward all-reduces the gradients: the loss is always computed through it.
+    loss_fn = DistributedDataParallel(loss_module) if world.parallel else loss_module
+    if world.parallel:  # each rank's own stream for the policy's samples, the minibatches
+        torch.manual_seed(rank_seed(cfg.seed, world.rank, world.size))
+
+    reduce = all_reduce_sum_ if world.parallel else None
+    collection = RankCollection(cfg, actor, world, remaining, reduce)
+    env, collector = collection.env, collection.collector
+    exact = rank_states(checkpoint, cfg) if checkpoint is not None else None
     if checkpoint is None:
-        # After the collector's reset: spread the first timeouts over [1, max_steps] steps.
-        env.base_env.randomize_step_counts()
+        collection.spread_timeouts()
     else:
-        resume_state(checkpoint, env, collector, resume)
-    logger = TensorboardLogger(exp_name=cfg.logger.exp_name, log_dir=cfg.logger.log_dir)
+        collection.load_env_state(checkpoint["env"])
+        if exact is not None:
+            resume_state(exact[world.rank], env, collector)
+        elif world.main:
+            print(f"{resume}: no env state for {world.size} rank(s) with "
+                  f"{cfg.dist.collectors} collection; resuming with fresh episodes")
+    logger = TensorboardLogger(exp_name=cfg.logger.exp_name, log_dir=cfg.logger.log_dir) \
+        if world.main else None
     curriculum = next(t for t in env.transform if isinstance(t, OccupancyCurriculum))
+    mini_batch = cfg.loss.mini_batch_size // world.size  # each rank's share
 
     def save(name: str) -> Path:
         path = run_dir / name
-        torch.save({"config": dataclasses.asdict(cfg), "frames": frames,
-                    "actor": actor.state_dict(), "critic": critic.state_dict(),
-                    "optim": optim.state_dict(), "env": env.state_dict(),
-                    "obs_norm": env.transform[-1].state_dict(), **run_state(env, collector)},
-                   path)
+        check_ranks_agree([actor, critic], world)
+        states = None
+        if collection.direct:
+            states = gather_to_main(run_state(env, collector), world)
+        if not world.main:
+            return path
+        state = {"config": dataclasses.asdict(cfg), "frames": frames,
+                 "actor": actor.state_dict(), "critic": critic.state_dict(),
+                 "optim": optim.state_dict(), "env": env.state_dict(),
+                 "obs_norm": env.transform[-1].state_dict()}
+        if states is not None:
+            state.update(states[0] if len(states) == 1 else {"ranks": states})
+        torch.save(state, path)
         return path
 
     next_checkpoint = (frames // cfg.logger.checkpoint_every + 1) * cfg.logger.checkpoint_every
-    if cfg.env.compile_step:
+    if cfg.env.compile_step and world.main:
         print("compiling the env's step and reset for the first batch (tens of seconds) ...",
               flush=True)
-    bar = tqdm(total=cfg.collector.total_frames, initial=frames, unit="frame", smoothing=0.1)
+    bar = tqdm(total=cfg.collector.total_frames, initial=frames, unit="frame", smoothing=0.1,
+               disable=not world.main)
     collect_start = time.perf_counter()
     for batch in collector:
         collect_time = time.perf_counter() - collect_start
-        batch_frames = batch.numel() * repeat
+        batch_frames = batch.numel() * repeat * world.size
         frames += batch_frames
         train_start = time.perf_counter()
         with torch.no_grad():
             advantage(batch)
         flat = batch.reshape(-1)
         for _ in range(cfg.loss.ppo_epochs):
-            for index in torch.randperm(flat.shape[0], device=device).split(
-                    cfg.loss.mini_batch_size):
-                losses = loss_module(flat[index])
-                total = losses["loss_objective"] + losses["loss_critic"]
-                if "loss_entropy" in losses.keys():
-                    total = total + losses["loss_entropy"]
-                total.backward()
-                torch.nn.utils.clip_grad_norm_(loss_module.parameters(), cfg.optim.max_grad_norm)
-                optim.step()
-                optim.zero_grad()
+            for index in torch.randperm(flat.shape[0], device=device).split(mini_batch):
+                losses = ppo_step(loss_fn, optim, flat[index], cfg.optim.max_grad_norm)
         collector.update_policy_weights_()
+        collection.sync_normalisers()
+        ended = gather_episodes(batch, world)
         train_time = time.perf_counter() - train_start
 
-        scalars = {
-            **episode_stats(batch, repeat),
-            "curriculum/occupancy": curriculum.occupancy, "curriculum/phase": curriculum.phase,
-            "curriculum/success_threshold": env.base_env.success_threshold,
-            "loss/objective": losses["loss_objective"].item(),
-            "loss/critic": losses["loss_critic"].item(),
-            "loss/kl_approx": losses["kl_approx"].item(),
-            "loss/clip_fraction": losses["clip_fraction"].item(),
-            "time/collect_fps": batch_frames / collect_time,
-            "time/train_fps": batch_frames / train_time,
-            "time/fps": batch_frames / (collect_time + train_time),
-        }
-        for key, value in scalars.items():
-            logger.log_scalar(key, value, step=frames)
-        bar.update(batch_frames)
-        bar.set_postfix(phase=curriculum.phase,
-                        success=f"{scalars.get('episode/success_rate', float('nan')):.2f}")
+        if world.main:
+            scalars = {
+                **episode_stats(ended, repeat),
+                "curriculum/occupancy": curriculum.occupancy,
+                "curriculum/phase": curriculum.phase,
+                "curriculum/success_threshold": env.base_env.success_threshold,
+                "loss/objective": losses["loss_objective"].item(),
+                "loss/critic": losses["loss_critic"].item(),
+                "loss/kl_approx": losses["kl_approx"].item(),
+                "loss/clip_fraction": losses["clip_fraction"].item(),
+                "time/collect_fps": batch_frames / collect_time,
+                "time/train_fps": batch_frames / train_time,
+                "time/fps": batch_frames / (collect_time + train_time),
+            }
+            for key, value in scalars.items():
+                logger.log_scalar(key, value, step=frames)
+            bar.update(batch_frames)
+            bar.set_postfix(phase=curriculum.phase,
+                            success=f"{scalars.get('episode/success_rate', float('nan')):.2f}")
         if frames >= next_checkpoint:
             save(f"checkpoint_{frames}.pt")
             next_checkpoint += cfg.logger.checkpoint_every
         collect_start = time.perf_counter()
     bar.close()
     final = save("checkpoint_final.pt")
-    collector.shutdown()
+    collection.shutdown()
+    del loss_fn  # DDP's reducer goes before its process group
+    leave(world)
     return final
 
 

@@ -9,6 +9,7 @@ less noise where precision pays (the last millimetres of parking)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule
@@ -104,17 +105,24 @@ def make_base_env(cfg: TrainConfig, training: bool, num_envs: int | None = None,
                       config=config, aids=aids, compile_step=cfg.env.compile_step and training)
 
 
-def make_env(cfg: TrainConfig) -> TransformedEnv:
+def make_env(cfg: TrainConfig, num_envs: int | None = None, seed: int | None = None,
+             replicas: int = 1, reduce: Callable[[torch.Tensor], object] | None = None
+             ) -> TransformedEnv:
     """The training env: ParkingEnv, episode statistics, the curriculum, observation norm
-    (written to ``NORMALISED``)."""
-    base = make_base_env(cfg, training=True)
+    (written to ``NORMALISED``).
+
+    One of ``replicas`` copies stepping in lockstep (data-parallel ranks x collector workers,
+    ``num_envs`` lots each): the curricula count the frames of all of them, ``reduce`` sums
+    the success curriculum's counts over them, and the normaliser's moving averages forget
+    at the rate of the run's global batch (see :func:`policy_input`)."""
+    base = make_base_env(cfg, training=True, num_envs=num_envs, seed=seed)
     return TransformedEnv(base, Compose(
         InitTracker(), StepCounter(), RewardSum(),
-        OccupancyCurriculum(cfg.curriculum.levels, cfg.curriculum.frames_per_level),
-        *success_curriculum(cfg),
+        OccupancyCurriculum(cfg.curriculum.levels, cfg.curriculum.frames_per_level, replicas),
+        *success_curriculum(cfg, replicas, reduce),
         # After RewardSum: the logged episode reward stays in the paper's units.
         RewardScaling(loc=0.0, scale=cfg.loss.reward_scale),
-        *policy_input(cfg, base),
+        *policy_input(cfg, base, replicas),
     ))
 
 
@@ -133,16 +141,23 @@ def make_eval_env(cfg: TrainConfig, obs_norm: dict, occupancy: float, num_envs: 
     return env
 
 
-def success_curriculum(cfg: TrainConfig) -> list[Transform]:
+def success_curriculum(cfg: TrainConfig, replicas: int = 1,
+                       reduce: Callable[[torch.Tensor], object] | None = None
+                       ) -> list[Transform]:
     """The success-threshold curriculum, when ``curriculum.success_start`` asks for one."""
     c = cfg.curriculum
     if c.success_start is None:
         return []
     return [SuccessCurriculum(c.success_start, RewardConfig().success_threshold,
-                              c.success_factor, c.success_target, c.success_window)]
+                              c.success_factor, c.success_target, c.success_window,
+                              replicas, reduce)]
 
 
-def policy_input(cfg: TrainConfig, base: ParkingEnv) -> list[Transform]:
+# VecNormV2's default: the weight of the past in its moving averages, per observation.
+NORM_DECAY = 0.9999
+
+
+def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[Transform]:
     """The transforms between the env and the networks: the optional action map (onto the
     env's own action bounds), then from the raw observation (with the optional goal features
     and brake flag) to the networks' input ``NORMALISED`` (last).
@@ -150,6 +165,11 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv) -> list[Transform]:
     Normalised into its own key: the networks read it, while the raw observation stays in the
     data for evaluation and analysis (final position and heading errors). reduce_batch_dims:
     one set of statistics over all envs (VecNormV2's default keeps one per env).
+
+    With ``replicas`` copies of the env, each forgets at ``NORM_DECAY ** replicas`` per
+    observation: the moving averages are linear in the data, so the mean of the copies'
+    statistics (``trainers.distributed.merge_normalisers``, after each batch) is what one
+    normaliser would hold after the run's global batch.
     """
     source = ["observation"]
     transforms: list[Transform] = []
@@ -167,7 +187,7 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv) -> list[Transform]:
                                   del_keys=False, sort=False)]
         source = ["observation_policy"]
     return [*transforms, VecNormV2(in_keys=source, out_keys=[NORMALISED],
-                                   reduce_batch_dims=True)]
+                                   decay=NORM_DECAY ** replicas, reduce_batch_dims=True)]
 
 
 def make_policy(cfg: TrainConfig, actor_state: dict) -> ProbabilisticActor:

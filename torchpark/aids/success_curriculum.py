@@ -4,6 +4,7 @@ succeeds, as a TorchRL transform (the paper's test is fixed at 4e-4)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 from tensordict import TensorDictBase
@@ -28,11 +29,20 @@ class SuccessCurriculum(FrameCountingTransform):
         factor: the multiplier of one tightening, in (0, 1).
         target: the success rate in (0, 1] of a window that earns a tightening.
         window: frames (steps of dt summed over the batch) per decision, >= 1.
+        replicas: copies of this env stepping in lockstep (``FrameCountingTransform``).
+        reduce: with replicas, sums a tensor over them in place (e.g.
+            ``torch.distributed.all_reduce``), so that each window's decision is taken on the
+            episodes of all of them and every copy holds the same threshold. Called once per
+            window, at the same step on every copy.
     """
 
     def __init__(self, start: float, final: float = 4e-4, factor: float = 0.5,
-                 target: float = 0.5, window: int = 163_840) -> None:
-        super().__init__()
+                 target: float = 0.5, window: int = 163_840, replicas: int = 1,
+                 reduce: Callable[[torch.Tensor], object] | None = None) -> None:
+        super().__init__(replicas)
+        if reduce is not None and not callable(reduce):
+            raise ValueError(f"reduce must be None or a callable, got {reduce!r}")
+        self.reduce = reduce
         for name, value in (("start", start), ("final", final), ("factor", factor),
                             ("target", target)):
             if not is_number(value) or not math.isfinite(value):
@@ -75,6 +85,11 @@ class SuccessCurriculum(FrameCountingTransform):
         self.succeeded += (done & next_tensordict.get("success")).sum()
         before = self._count(next_tensordict)
         if self._frames // self.window > before // self.window:
+            if self.reduce is not None:
+                counts = torch.stack([self.ended, self.succeeded])
+                self.reduce(counts)
+                self.ended.copy_(counts[0])
+                self.succeeded.copy_(counts[1])
             rate = self.succeeded / self.ended.clamp_min(1.0)
             tighter = (self.threshold * self.factor).clamp_min(self.final)
             self.threshold.copy_(torch.where(rate >= self.target, tighter, self.threshold))
