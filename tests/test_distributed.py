@@ -201,6 +201,18 @@ def test_collector_workers(backend):
         frames = collection.call("env.transform[3].frames_seen")
         assert frames == [1024, 1024]
         assert collection.env.transform[3].frames_seen == 1024
+
+        # A checkpoint's state loaded into every worker (a resume): the next merge counts
+        # its observations once, and adds what each worker saw since.
+        collection.load_env_state(collection.env.state_dict())
+        loaded = int(collection.env.transform[-1].state_dict()["_extra_state"][key])
+        next(batches)
+        seen = [int(s["_extra_state"][key]) - loaded
+                for s in collection.call("env.transform[-1].state_dict")]
+        collection.sync_normalisers()
+        merged = collection.call("env.transform[-1].state_dict")[0]["_extra_state"][key]
+        assert int(merged) == loaded + sum(seen) and min(seen) > 0
+        assert collection.call("env.transform[3].frames_seen") == [2048, 2048]
     finally:
         collection.shutdown()
         if backend == "ray":

@@ -126,7 +126,8 @@ class RankCollection:
         self.env.load_state_dict(state)
         if not self.direct:
             self.call("env.load_state_dict", state)
-        self._counted = None
+        # Every replica starts from these counts: the next merge adds only what they see.
+        self._counted = norm_counts(self._norm_state(state))
 
     def sync_normalisers(self) -> None:
         """Merge the observation normalisers of every replica of the run (all workers of all
