@@ -72,7 +72,8 @@ def composition(cfg: TrainConfig, checkpoint: dict) -> dict[str, str | int]:
     return {
         "agent": "hybrid: policy + " + " + ".join(aids) if aids else "policy alone",
         "brake": brake, "docking_law": law, "action_repeat": agent.action_repeat,
-        "policy": f"PPO ({cfg.logger.exp_name} preset run), {checkpoint['frames']:,} frames",
+        "policy": checkpoint.get("trained_by")
+        or f"PPO ({cfg.logger.exp_name} preset run), {checkpoint['frames']:,} frames",
     }
 
 

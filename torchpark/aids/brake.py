@@ -18,11 +18,13 @@ _BLOCKED = 1e3  # rad added to a blocked steering angle's distance from the comm
 
 class Braking(NamedTuple):
     """One step of dt after the brake, fields (N,) unless stated: ``pose`` (N, 3) and
-    ``speed`` m/s where it ends; ``braked``: the brake stopped it (the car kept its pose at
-    speed 0); ``intervened``: the brake stopped or steered it."""
+    ``speed`` m/s where it ends; ``steer`` rad, the steering angle taken (the commanded one
+    unless steered clear); ``braked``: the brake stopped it (the car kept its pose at speed
+    0); ``intervened``: the brake stopped or steered it."""
 
     pose: Tensor
     speed: Tensor
+    steer: Tensor
     braked: Tensor
     intervened: Tensor
 
@@ -52,8 +54,10 @@ def apply_brake(start: Tensor, pose: Tensor, v: Tensor, delta: Tensor, collision
         clear = ~blocked
         gap = (angles - delta[:, None]).abs() + torch.where(clear, 0.0, _BLOCKED)
         steered = collision & clear.any(-1)
-        chosen = torch.take_along_dim(tries, gap.argmin(-1)[:, None, None], dim=1)[:, 0]
+        best = gap.argmin(-1)
+        chosen = torch.take_along_dim(tries, best[:, None, None], dim=1)[:, 0]
         pose = torch.where(steered[:, None], chosen, pose)
+        delta = torch.where(steered, angles[best], delta)
         collision = collision & ~steered
     pose = torch.where(collision[:, None], start, pose)
-    return Braking(pose, torch.where(collision, 0.0, v), collision, intervened)
+    return Braking(pose, torch.where(collision, 0.0, v), delta, collision, intervened)

@@ -50,13 +50,25 @@ class AidedState(NamedTuple):
     aids: AidState
 
 
-def aided_step(state: AidedState, action: Tensor, world: World, steer_angles: Tensor,
-               cfg: ParkingConfig, aids: AidsConfig
-               ) -> tuple[AidedState, StepResult, Tensor]:
-    """One step of dt with the aids: the docking law may replace the clamped action, the
-    brake may steer or stop the move, and the brake's penalty joins the paper's reward.
-    ``steer_angles``: the brake's (K,) angles (:func:`torchpark.aids.brake.steer_angles`).
-    Returns the new state, what the step emits, and whether every action was finite."""
+class Control(NamedTuple):
+    """What the aids make of one action at one state, fields (N,) unless stated: the
+    (``speed`` m/s, ``steer`` rad) the car is driven at, and where that step of dt ends
+    (``pose`` (N, 3), ``collision``); the aids' next state (``aids``) and whether the brake
+    stopped or steered the step (``intervened``)."""
+
+    speed: Tensor
+    steer: Tensor
+    pose: Tensor
+    collision: Tensor
+    aids: AidState
+    intervened: Tensor
+
+
+def aided_control(state: AidedState, action: Tensor, world: World, steer_angles: Tensor,
+                  cfg: ParkingConfig, aids: AidsConfig) -> Control:
+    """One step of dt's control with the aids, without committing it: the docking law may
+    replace the clamped action (N, 2), the brake may steer or stop the move. A pure function
+    of the state: a teacher's label at any state (``trainers.distill``)."""
     sim, aid = state
     v, delta = clamp_action(action, cfg.vehicle)
     engaged, reverses = aid.docking_engaged, aid.docking_reverses
@@ -66,15 +78,26 @@ def aided_step(state: AidedState, action: Tensor, world: World, steer_angles: Te
     pose, collision = move(sim.pose, v, delta, sim.present, world, cfg)
     braked = intervened = torch.zeros_like(collision)
     if aids.brake is not None:
-        pose, v, braked, intervened = apply_brake(sim.pose, pose, v, delta, collision,
-                                                  sim.present, steer_angles, world, cfg)
+        pose, v, delta, braked, intervened = apply_brake(sim.pose, pose, v, delta, collision,
+                                                         sim.present, steer_angles, world, cfg)
         collision = torch.zeros_like(collision)
-    sim, out = commit(sim, pose, v, collision, world, cfg)
-    if aids.brake is not None:
-        out = out._replace(reward=out.reward + torch.where(braked[:, None], aids.brake.penalty,
-                                                           0.0))
     aid = AidState(braked, aid.interventions + intervened.long(), engaged, reverses)
-    return AidedState(sim, aid), out, action.isfinite().all()
+    return Control(v, delta, pose, collision, aid, intervened)
+
+
+def aided_step(state: AidedState, action: Tensor, world: World, steer_angles: Tensor,
+               cfg: ParkingConfig, aids: AidsConfig
+               ) -> tuple[AidedState, StepResult, Tensor]:
+    """One step of dt with the aids (:func:`aided_control`), committed; the brake's penalty
+    joins the paper's reward. ``steer_angles``: the brake's (K,) angles
+    (:func:`torchpark.aids.brake.steer_angles`). Returns the new state, what the step emits,
+    and whether every action was finite."""
+    control = aided_control(state, action, world, steer_angles, cfg, aids)
+    sim, out = commit(state.sim, control.pose, control.speed, control.collision, world, cfg)
+    if aids.brake is not None:
+        out = out._replace(reward=out.reward + torch.where(control.aids.braked[:, None],
+                                                           aids.brake.penalty, 0.0))
+    return AidedState(sim, control.aids), out, action.isfinite().all()
 
 
 def aided_new_episodes(lots: LotDraw, near: NearDraw | None, world: World, cfg: ParkingConfig

@@ -1,0 +1,320 @@
+"""A teacher-distilled policy: the hybrid agent (policy + emergency brake + docking law)
+distilled by DAgger into one network that drives the paper's env alone.
+
+    python -m trainers.distill TEACHER --out DIR [--iterations 8] [--envs 128] [--steps 400]
+                                             [--epochs 3] [--seed 0] [--overwrite]
+
+Each iteration runs the current student (the teacher itself in the first) in lots at every
+occupancy level, half the starts near the goal, and labels every state it visits with the
+teacher's control there: its policy's action (deterministic, at every step of dt), replaced by
+the docking law in the funnel and steered clear or stopped by the brake
+(:func:`torchpark.aids.step.aided_control`), with the aids' state (the law's gear, the
+brake's flag) tracked along the student's path. The labels join the data and the student is
+fitted to all of it (DAgger: Ross, Gordon and Bagnell, 2011). Half the rows act with
+Gaussian noise (DART: Laskey et al., 2017), so the data holds the corrections back to the
+teacher's path.
+
+The student reads what the paper's agent can (the paper's observation and its goal-frame
+features, normalised; the observed speed's sign tells it which way the teacher's multi-point
+turn was going) and acts at every step of dt: no brake, no law, no held actions. Its speed
+error is measured on an asinh scale (``DistillConfig.speed_precision``): the last
+millimetre asks for speeds of mm/s, a ten-thousandth of the range.
+
+Written into ``--out``: ``checkpoint_final.pt`` (a torchpark checkpoint:
+``python -m trainers.evaluate DIR/checkpoint_final.pt``) and ``dagger.csv``, per iteration
+the student's success at the three thresholds on the yardstick (starts 0-6 m behind the
+goal, within 1 m and 0.6 rad of the slot axis, empty lot) and from uniform starts at 0 % and
+90 % occupancy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from tensordict import TensorDict
+from torchrl.envs import Compose, TransformedEnv
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from torchpark.aids.brake import steer_angles
+from torchpark.aids.config import BrakeConfig
+from torchpark.aids.docking import error_from_goal
+from torchpark.aids.step import AidedState, AidState, aided_control
+from torchpark.config import check_types, positive, require
+from torchpark.curriculum import PAPER_LEVELS
+from torchpark.runner import run_episodes
+from trainers.config import AgentConfig, EnvConfig, LoggerConfig, TrainConfig, env_configs
+from trainers.evaluate import load
+from trainers.utils import NORMALISED, make_base_env, make_policy, make_ppo_models, policy_input
+
+# The student's raw input (before normalisation): the paper's observation and the goal
+# seen from the car (torchpark.GoalFrameFeatures).
+STUDENT_INPUT = "observation_policy"
+
+
+@dataclass(frozen=True)
+class DistillConfig:
+    """DAgger's schedule. ``envs`` lots per rollout, ``steps`` steps of dt at each occupancy
+    level per iteration; ``near_goal``: the fraction of starts near the goal (the teacher's
+    training box); ``noise``: the std of the Gaussian noise on the noisy rows' actions (in
+    [-1, 1] units); ``speed_precision`` / ``steer_precision``: below these (in [-1, 1]
+    units) the loss compares actions linearly, above logarithmically (1: about the squared
+    error); ``release``: the teacher's docking law lets go of a student more than
+    ``release`` m outside the region it drives in (0 to ``run_in`` m behind the goal, within
+    ``lateral`` m of the slot axis), and the teacher's policy labels there (None: the law
+    keeps the wheel to the episode's end, as in the hybrid); ``yardstick``: episodes per
+    check after each iteration."""
+
+    iterations: int = 8
+    envs: int = 128
+    steps: int = 400
+    epochs: int = 3
+    batch_size: int = 4096
+    lr: float = 1e-3
+    near_goal: float = 0.5
+    noise: float = 0.05
+    speed_precision: float = 1.0
+    steer_precision: float = 1.0
+    release: float | None = None
+    yardstick: int = 200
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        check_types(self)
+        for name, high in (("iterations", 1000), ("envs", 65536), ("steps", 100_000),
+                           ("epochs", 1000), ("batch_size", 1 << 20), ("yardstick", 65536)):
+            value = getattr(self, name)
+            require(1 <= value <= high, f"DistillConfig.{name}", f"an int in [1, {high}]",
+                    value)
+        for name in ("lr", "speed_precision", "steer_precision"):
+            positive(f"DistillConfig.{name}", getattr(self, name))
+        require(0.0 <= self.near_goal <= 1.0, "DistillConfig.near_goal", "in [0, 1]",
+                self.near_goal)
+        require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
+        if self.release is not None:
+            positive("DistillConfig.release", self.release)
+
+
+class Teacher:
+    """A hybrid checkpoint's control at any state of a paper's env (its lots, its world).
+
+    ``label(sim, observation)`` returns the (N, 2) control (v m/s, delta rad) the hybrid
+    agent would drive with there, and advances the aids' state (the docking law's gear, the
+    brake's flag) as if it had; ``forget(rows)`` clears it where episodes ended."""
+
+    def __init__(self, path: str, env: TransformedEnv, release: float | None = None) -> None:
+        cfg, checkpoint = load(path)
+        _, self.aids = env_configs(cfg, training=False)
+        if self.aids is None or (self.aids.docking is None and self.aids.brake is None):
+            raise ValueError(f"teacher {path!r} has neither the brake nor the docking law: "
+                             f"distil a hybrid agent")
+        self.actor = make_policy(cfg, checkpoint["actor"])
+        self.base = env.base_env
+        # The teacher's own input transforms (goal features, brake flag) with its frozen
+        # normaliser, applied outside an env.
+        probe = make_base_env(cfg, training=False, num_envs=1, seed=0)
+        inputs = policy_input(cfg, probe)
+        inputs[-1].load_state_dict(checkpoint["obs_norm"])
+        TransformedEnv(probe, Compose(*inputs))  # binds the normaliser's specs
+        self.action_map = inputs[0] if cfg.agent.action_exponents is not None else None
+        self.inputs = Compose(*[t.clone() for t in inputs[int(self.action_map is not None):-1]],
+                              inputs[-1].to_observation_norm())
+        self.angles = steer_angles(self.base.config, self.aids.brake or BrakeConfig(),
+                                   self.base.device)
+        self.state = AidState.zeros(self.base.num_envs, self.base.device)
+        self.release = release
+
+    @torch.no_grad()
+    def label(self, observation: torch.Tensor) -> torch.Tensor:
+        n = observation.shape[0]
+        sim, law = self.base.state, self.aids.docking
+        if self.release is not None and law is not None:
+            error = error_from_goal(sim.pose, sim.goal)
+            near = ((error.remaining >= -self.release)
+                    & (error.remaining <= law.run_in + self.release)
+                    & (error.lateral.abs() <= law.lateral + self.release))
+            self.state = self.state._replace(docking_engaged=self.state.docking_engaged & near,
+                                             docking_reverses=self.state.docking_reverses & near)
+        td = TensorDict({"observation": observation, "braked": self.state.braked[:, None]},
+                        [n])
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            td = self.actor(self.inputs(td))
+        action = td["action"]
+        if self.action_map is not None:
+            action = self.action_map.inv(td)["action"]
+        control = aided_control(AidedState(sim, self.state), action,
+                                self.base.world, self.angles, self.base.config, self.aids)
+        self.state = control.aids
+        return torch.stack([control.speed, control.steer], dim=-1)
+
+    def forget(self, rows: torch.Tensor) -> None:
+        self.state = AidState(*(torch.where(rows, torch.zeros_like(f), f) for f in self.state))
+
+
+def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
+    """The student's TrainConfig: the paper's env and agent (no aid, one action per step of
+    dt) with the goal features and actions in [-1, 1], the teacher's network sizes; training
+    starts near the goal with probability ``near_goal``."""
+    tcfg, _ = load(teacher)
+    student = TrainConfig(
+        env=EnvConfig(num_envs=cfg.envs, max_steps=tcfg.env.max_steps),
+        agent=AgentConfig(action_exponents=[1.0, 1.0], goal_features=True),
+        model=tcfg.model, logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
+    student.train.near_goal_starts = cfg.near_goal
+    return student
+
+
+def asinh_loss(prediction: torch.Tensor, target: torch.Tensor, precision: torch.Tensor
+               ) -> torch.Tensor:
+    """Mean squared difference of asinh(x / precision): linear below ``precision`` (one
+    per action dimension), logarithmic above, so a speed of mm/s is fitted as closely,
+    relative to itself, as one of m/s."""
+    return (torch.asinh(prediction / precision) - torch.asinh(target / precision)).pow(2).mean()
+
+
+def rollout(env: TransformedEnv, actor, teacher: Teacher, high: torch.Tensor, steps: int,
+            teacher_drives: bool, noise: float, generator: torch.Generator
+            ) -> tuple[torch.Tensor, torch.Tensor]:
+    """``steps`` steps of dt of ``env`` (every row reset first), driven by the teacher's
+    labels or the student's deterministic actions, noisy on every other row. Returns the
+    student's raw inputs (steps x N, D) and the teacher's labels there in [-1, 1] units."""
+    n = env.base_env.num_envs
+    noisy = (torch.arange(n, device=env.device) % 2 == 1)[:, None]
+    inputs, labels = [], []
+    teacher.forget(torch.ones(n, dtype=torch.bool, device=env.device))
+    td = env.reset()
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        for _ in range(steps):
+            target = (teacher.label(td["observation"]) / high).clamp(-0.999, 0.999)
+            inputs.append(td[STUDENT_INPUT])
+            labels.append(target)
+            action = target if teacher_drives else actor(td)["action"]
+            jitter = torch.randn(action.shape, generator=generator, device=action.device)
+            td["action"] = (action + noisy * noise * jitter).clamp(-1.0, 1.0)
+            td, td_next = env.step_and_maybe_reset(td)
+            teacher.forget(td["next", "done"][:, 0])
+            td = td_next
+    return torch.cat(inputs), torch.cat(labels)
+
+
+def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, cfg: DistillConfig,
+        optim: torch.optim.Optimizer, precision: torch.Tensor, generator: torch.Generator
+        ) -> float:
+    """``cfg.epochs`` passes of minibatch regression of the student's deterministic action
+    (tanh of its loc) on the labels; returns the last epoch's mean loss."""
+    net = actor.module[0]
+    losses = []
+    for _ in range(cfg.epochs):
+        losses = []
+        for index in torch.randperm(inputs.shape[0], generator=generator).split(cfg.batch_size):
+            td = norm(TensorDict({STUDENT_INPUT: inputs[index]}, [index.shape[0]]))
+            loss = asinh_loss(torch.tanh(net(td)["loc"]), labels[index], precision)
+            optim.zero_grad()
+            loss.backward()
+            optim.step()
+            losses.append(loss.detach())
+    return torch.stack(losses).mean().item()
+
+
+def check(actor, scfg: TrainConfig, obs_norm: dict, episodes: int, seed: int
+          ) -> dict[str, float]:
+    """The student on the yardstick (near-goal starts, empty lot) and from uniform starts at
+    0 % and 90 %: success at the three thresholds and collisions."""
+    row = {}
+    for name, near, occupancy in (("yardstick", 1.0, 0.0), ("uniform_0", 0.0, 0.0),
+                                  ("uniform_90", 0.0, 0.9)):
+        cfg = dataclasses.replace(scfg, train=dataclasses.replace(scfg.train,
+                                                                   near_goal_starts=near))
+        base = make_base_env(cfg, training=True, num_envs=episodes, seed=seed)
+        base.occupancy = occupancy
+        inputs = policy_input(cfg, base)
+        env = TransformedEnv(base, Compose(*inputs))
+        inputs[-1].load_state_dict(obs_norm)
+        inputs[-1].freeze()
+        run = run_episodes(actor, env, cfg.env.max_steps)
+        for k, threshold in enumerate(run.thresholds):
+            row[f"{name}_{threshold:g}"] = run.reached[:, k].float().mean().item()
+        row[f"{name}_collision"] = run.collision.float().mean().item()
+    return row
+
+
+def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
+    """Run DAgger; returns the final checkpoint's path."""
+    scfg = student_config(teacher_path, cfg)
+    torch.manual_seed(cfg.seed)
+    generator = torch.Generator().manual_seed(cfg.seed)
+    base = make_base_env(scfg, training=True)
+    inputs = policy_input(scfg, base)
+    env = TransformedEnv(base, Compose(*inputs))
+    norm = inputs[-1]
+    teacher = Teacher(teacher_path, env, cfg.release)
+    actor, _ = make_ppo_models(env.observation_spec[NORMALISED].shape[-1], env.action_spec,
+                               scfg.model)
+    high = base.action_spec.space.high[0]
+    precision = torch.tensor([cfg.speed_precision, cfg.steer_precision])
+    optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
+    data_in, data_out, frames, rows = [], [], 0, []
+    started = time.perf_counter()
+    for iteration in range(cfg.iterations):
+        for level in PAPER_LEVELS:
+            base.occupancy = level
+            x, y = rollout(env, actor, teacher, high, cfg.steps, iteration == 0, cfg.noise,
+                           generator)
+            data_in.append(x)
+            data_out.append(y)
+            frames += x.shape[0]
+        if iteration == 0:
+            norm.freeze()  # the teacher's states set the student's input scale
+        x, y = torch.cat(data_in), torch.cat(data_out)
+        loss = fit(actor, norm.to_observation_norm(), x, y, cfg, optim, precision, generator)
+        row = {"iteration": iteration, "frames": frames, "samples": x.shape[0], "loss": loss,
+               **check(actor, scfg, norm.state_dict(), cfg.yardstick, cfg.seed + 1000),
+               "wall_s": time.perf_counter() - started}
+        rows.append(row)
+        print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                       for k, v in row.items()), flush=True)
+        with open(out / "dagger.csv", "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(row))
+            writer.writeheader()
+            writer.writerows(rows)
+        path = out / "checkpoint_final.pt"
+        torch.save({"config": dataclasses.asdict(scfg), "frames": frames,
+                    "actor": actor.state_dict(), "obs_norm": norm.state_dict(),
+                    "trained_by": f"DAgger from the hybrid {teacher_path}, {iteration + 1} "
+                                  f"iterations, {frames:,} labelled frames"}, path)
+    return path
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m trainers.distill",
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument("teacher", help="a hybrid agent's checkpoint (e.g. "
+                                        "results/fast/checkpoint_final.pt)")
+    parser.add_argument("--out", required=True, help="directory of the student's files")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace a checkpoint already in --out (refused by default)")
+    for field in dataclasses.fields(DistillConfig):
+        kind = float if field.default is None else type(field.default)
+        parser.add_argument(f"--{field.name.replace('_', '-')}", type=kind,
+                            default=field.default)
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    if (out / "checkpoint_final.pt").exists() and not args.overwrite:
+        parser.error(f"{out / 'checkpoint_final.pt'} exists: pass another --out, or "
+                     f"--overwrite to replace it")
+    try:
+        cfg = DistillConfig(**{f.name: getattr(args, f.name)
+                               for f in dataclasses.fields(DistillConfig)})
+        out.mkdir(parents=True, exist_ok=True)
+        print(distill(args.teacher, out, cfg))
+    except (ValueError, OSError) as err:
+        parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
+
+
+if __name__ == "__main__":
+    main()
