@@ -17,13 +17,12 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 from torch.nn.parallel import DistributedDataParallel
-from torchrl.envs import Compose, TransformedEnv
 from torchrl.objectives import ClipPPOLoss
 
 from trainers.config import load_config
 from trainers.distributed import join, leave
 from trainers.ppo import ppo_step
-from trainers.utils import NORMALISED, make_base_env, make_ppo_models, policy_input
+from trainers.utils import build_models
 
 BATCH, MINIBATCH, EPOCHS = 1024, 256, 2
 
@@ -31,10 +30,7 @@ BATCH, MINIBATCH, EPOCHS = 1024, 256, 2
 def make_loss() -> ClipPPOLoss:
     """The smoke preset's networks and loss (as trainers.ppo builds them)."""
     cfg = load_config("smoke")
-    probe = make_base_env(cfg, training=True, num_envs=1, seed=0)
-    env = TransformedEnv(probe, Compose(*policy_input(cfg, probe)))
-    actor, critic = make_ppo_models(env.observation_spec[NORMALISED].shape[-1],
-                                    env.action_spec, cfg.model)
+    actor, critic = build_models(cfg)
     return ClipPPOLoss(actor, critic, clip_epsilon=0.2, entropy_bonus=False,
                        critic_coeff=0.5, loss_critic_type="l2",
                        normalize_advantage=False)

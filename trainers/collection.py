@@ -4,8 +4,8 @@
 worker-side state the learner keeps consistent.
 
 Each worker steps ``env.num_envs / (world_size x num_collectors)`` lots built by
-:func:`worker_env` from its own seed (workers start by spawn: the factory is a picklable
-``functools.partial`` of an importable function); ``sync=True`` (PPO is on-policy); the
+:func:`trainers.utils.make_env` from its own seed (workers start by spawn: the factory is a
+picklable ``functools.partial`` of an importable function); ``sync=True`` (PPO is on-policy); the
 total frames are finite (an endless run yields no batch on ray / rpc / distributed). The
 curriculum in each worker counts the run's global frames (``replicas``); after each batch
 the learner merges the workers' observation normalisers (``sync_normalisers``) and pushes
@@ -21,16 +21,10 @@ from typing import Any
 
 import torch
 from torchrl.collectors import Collector
-from torchrl.envs import TransformedEnv
 
 from trainers.config import TrainConfig
 from trainers.distributed import World, all_gather, merge_normalisers, norm_counts, rank_seed
 from trainers.utils import make_env
-
-
-def worker_env(cfg: TrainConfig, num_envs: int, seed: int, replicas: int) -> TransformedEnv:
-    """A collector worker's env (:func:`trainers.utils.make_env`), built in the worker."""
-    return make_env(cfg, num_envs=num_envs, seed=seed, replicas=replicas)
 
 
 def free_port() -> int:
@@ -90,10 +84,10 @@ class RankCollection:
         else:
             seeds = [rank_seed(cfg.seed, world.rank * self.workers + w, replicas)
                      for w in range(self.workers)]
-            factories = [functools.partial(worker_env, cfg, num_envs, seed, replicas)
-                         for seed in seeds]
+            factories = [functools.partial(make_env, cfg, num_envs=num_envs, seed=seed,
+                                           replicas=replicas) for seed in seeds]
             # The learner's env: specs and the state a checkpoint saves (never stepped).
-            self.env = worker_env(cfg, num_envs, seeds[0], replicas)
+            self.env = make_env(cfg, num_envs=num_envs, seed=seeds[0], replicas=replicas)
             self.collector = Collector(factories, actor, backend=d.collectors,
                                        num_collectors=self.workers, sync=True,
                                        frames_per_batch=steps_per_batch,

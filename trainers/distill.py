@@ -50,7 +50,7 @@ from torchpark.curriculum import PAPER_LEVELS
 from torchpark.runner import run_episodes
 from trainers.config import AgentConfig, EnvConfig, LoggerConfig, TrainConfig, env_configs
 from trainers.evaluate import load
-from trainers.utils import NORMALISED, make_base_env, make_policy, make_ppo_models, policy_input
+from trainers.utils import build_models, make_base_env, make_policy, policy_input
 
 # The student's raw input (before normalisation): the paper's observation and the goal
 # seen from the car (torchpark.GoalFrameFeatures).
@@ -253,8 +253,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     env = TransformedEnv(base, Compose(*inputs))
     norm = inputs[-1]
     teacher = Teacher(teacher_path, env, cfg.release)
-    actor, _ = make_ppo_models(env.observation_spec[NORMALISED].shape[-1], env.action_spec,
-                               scfg.model)
+    actor, _ = build_models(scfg)
     high = base.action_spec.space.high[0]
     precision = torch.tensor([cfg.speed_precision, cfg.steer_precision])
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)

@@ -18,7 +18,6 @@ import torch
 from tensordict import TensorDict
 from torch.nn.parallel import DistributedDataParallel
 from torchrl.collectors import Collector
-from torchrl.envs import Compose, TransformedEnv
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 from torchrl.record.loggers import TensorboardLogger
@@ -41,7 +40,7 @@ from trainers.distributed import (
     rank_seed,
     standardise_advantage,
 )
-from trainers.utils import NORMALISED, make_base_env, make_ppo_models, policy_input
+from trainers.utils import build_models
 
 # Config sections a checkpoint must share with the run that resumes it.
 _MODEL_SECTIONS = ("env", "agent", "train", "model", "curriculum")
@@ -228,11 +227,7 @@ def _train(cfg: TrainConfig, resume: str | None, world: World) -> Path:
         raise ValueError(f"collector.total_frames={cfg.collector.total_frames} leaves less than "
                          f"one batch after the checkpoint's {frames} frames")
 
-    # The networks' input size and action bounds come from a one-lot env.
-    probe = make_base_env(cfg, training=True, num_envs=1, seed=0)
-    probe_env = TransformedEnv(probe, Compose(*policy_input(cfg, probe)))
-    actor, critic = make_ppo_models(probe_env.observation_spec[NORMALISED].shape[-1],
-                                    probe_env.action_spec, cfg.model)
+    actor, critic = build_models(cfg)
     actor, critic = actor.to(device), critic.to(device)
     # The advantages are standardised over each minibatch of all ranks by ppo_step.
     loss_module = ClipPPOLoss(

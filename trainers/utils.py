@@ -190,12 +190,18 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
                                    decay=NORM_DECAY ** replicas, reduce_batch_dims=True)]
 
 
+def build_models(cfg: TrainConfig) -> tuple[ProbabilisticActor, ValueOperator]:
+    """The run's fresh actor and critic (:func:`make_ppo_models`), their input size and
+    action bounds read from a one-lot env with the run's policy input."""
+    probe = make_base_env(cfg, training=False, num_envs=1, seed=0)
+    env = TransformedEnv(probe, Compose(*policy_input(cfg, probe)))
+    return make_ppo_models(env.observation_spec[NORMALISED].shape[-1], env.action_spec,
+                           cfg.model)
+
+
 def make_policy(cfg: TrainConfig, actor_state: dict) -> ProbabilisticActor:
     """A trained actor (it reads ``NORMALISED``, see :func:`make_eval_env`) from its state
     dict, on ``cfg.env.device``."""
-    probe = make_base_env(cfg, training=False, num_envs=1, seed=0)
-    env = TransformedEnv(probe, Compose(*policy_input(cfg, probe)))
-    actor, _ = make_ppo_models(env.observation_spec[NORMALISED].shape[-1], env.action_spec,
-                               cfg.model)
+    actor, _ = build_models(cfg)
     actor.load_state_dict(actor_state)
     return actor.to(cfg.env.device)
