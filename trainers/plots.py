@@ -21,11 +21,23 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 Scalars = dict[str, tuple[np.ndarray, np.ndarray]]
 LOSSES = ("loss/objective", "loss/critic", "loss/kl_approx", "loss/clip_fraction")
+# Stable-Baselines3's names for the same curves (trainers.sb3_paper's run; its episode
+# reward and length are means over the last 100 episodes).
+SB3_TAGS = {"rollout/ep_rew_mean": "episode/reward", "rollout/ep_len_mean": "episode/length",
+            "rollout/success_rate": "episode/success_rate",
+            "train/policy_gradient_loss": "loss/objective", "train/value_loss": "loss/critic",
+            "train/approx_kl": "loss/kl_approx", "train/clip_fraction": "loss/clip_fraction"}
 
 
 def read_scalars(run_dir: str | Path) -> Scalars:
-    """Every scalar tag of the event files under ``run_dir``: tag -> (frames, values)."""
-    files = sorted(Path(run_dir).rglob("events.out.tfevents.*"))
+    """Every scalar tag of the event files under ``run_dir``: tag -> (frames, values).
+
+    Files are read in the order they were written (the timestamp in their names); a run
+    resumed from a checkpoint writes a new file that logs again the frames after it, so each
+    file's values replace the earlier files' from its first frame on. Stable-Baselines3's
+    tags are also given their torchpark names (``SB3_TAGS``)."""
+    files = sorted((f for f in Path(run_dir).rglob("events.out.tfevents.*") if f.is_file()),
+                   key=lambda f: (int(f.name.split(".")[3]), f.name))
     if not files:
         raise FileNotFoundError(f"no TensorBoard event files under {str(run_dir)!r}")
     scalars: dict[str, list] = {}
@@ -33,12 +45,19 @@ def read_scalars(run_dir: str | Path) -> Scalars:
         events = EventAccumulator(str(file), size_guidance={"scalars": 0})
         events.Reload()
         for tag in events.Tags()["scalars"]:
-            scalars.setdefault(tag, []).extend((e.step, e.value) for e in events.Scalars(tag))
+            new = [(e.step, e.value) for e in events.Scalars(tag)]
+            if new:
+                first = min(step for step, _ in new)
+                kept = [pair for pair in scalars.get(tag, []) if pair[0] < first]
+                scalars[tag] = kept + new
     out = {}
     for tag, pairs in scalars.items():
         pairs.sort()
         steps, values = zip(*pairs, strict=True)
         out[tag] = (np.asarray(steps), np.asarray(values, dtype=np.float64))
+    for sb3, name in SB3_TAGS.items():
+        if sb3 in out and name not in out:
+            out[name] = out[sb3]
     return out
 
 
@@ -51,12 +70,12 @@ def smooth(values: np.ndarray, window: int) -> np.ndarray:
 
 
 def shade_phases(ax, scalars: Scalars) -> None:
-    """Alternate shading for each curriculum phase, labelled with its occupancy."""
-    if "curriculum/phase" not in scalars:
+    """Alternate shading for each curriculum phase (a change of occupancy), labelled with
+    its occupancy."""
+    if "curriculum/occupancy" not in scalars:
         return
-    frames, phase = scalars["curriculum/phase"]
-    _, occupancy = scalars["curriculum/occupancy"]
-    starts = np.flatnonzero(np.diff(phase, prepend=-1))
+    frames, occupancy = scalars["curriculum/occupancy"]
+    starts = np.flatnonzero(np.diff(occupancy, prepend=-1.0))
     ends = np.append(starts[1:], len(frames) - 1)
     for k, (a, b) in enumerate(zip(starts, ends, strict=True)):
         if k % 2 == 0:
