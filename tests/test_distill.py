@@ -1,6 +1,8 @@
 """Distillation (trainers.distill): the teacher's labels are the hybrid agent's control, so
-the paper's env driven by them follows the hybrid env's path; a DAgger run writes a
-checkpoint the evaluator reads as a policy alone; bad settings are refused by name."""
+the paper's env driven by them follows the hybrid env's path; the final-approach states lie
+in the law's settled region and carry its control; the labels in the student's units are
+what its action map turns into the teacher's control; a DAgger run writes a checkpoint the
+evaluator reads as a policy alone; bad settings are refused by name."""
 
 from __future__ import annotations
 
@@ -8,13 +10,22 @@ import dataclasses
 
 import pytest
 import torch
+from tensordict import TensorDict
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchpark import ParkingConfig, ParkingEnv
-from torchpark.aids.docking import error_from_goal, in_funnel
+from torchpark.aids.actions import PowerActionMap, power_map_inverse
+from torchpark.aids.docking import docking_action, error_from_goal, in_funnel
+from torchpark.aids.features import GoalFrameFeatures
 from trainers.config import env_configs, load_config
-from trainers.distill import DistillConfig, Teacher, asinh_loss, main
+from trainers.distill import (
+    DistillConfig,
+    Teacher,
+    approach_poses,
+    approach_states,
+    main,
+)
 from trainers.evaluate import composition, load
 from trainers.utils import make_base_env, make_eval_env, make_policy, make_ppo_models, policy_input
 
@@ -23,11 +34,11 @@ HYBRID = ["agent.emergency_brake=true", "agent.steer_clear=5", "agent.docking=tr
           "agent.action_exponents=[1.0,1.0]", "env.max_steps=200"]
 
 
-@pytest.fixture(scope="module")
-def teacher_path(tmp_path_factory) -> str:
-    """A hybrid checkpoint with an untrained policy that drives fast and turns (the aids
-    make the rest) and a normaliser fitted to a few of its steps."""
-    cfg = load_config("smoke", HYBRID)
+def write_checkpoint(path, overrides: list[str]) -> str:
+    """A checkpoint of the smoke preset with ``overrides``: an untrained policy that drives
+    fast and turns (the aids make the rest) and a normaliser fitted to a few of its
+    steps."""
+    cfg = load_config("smoke", overrides)
     torch.manual_seed(0)
     base = make_base_env(cfg, training=False, num_envs=8, seed=0)
     inputs = policy_input(cfg, base)
@@ -38,10 +49,15 @@ def teacher_path(tmp_path_factory) -> str:
         last = [m for m in actor.modules() if isinstance(m, torch.nn.Linear)][-1]
         last.bias[:2] = torch.tensor([1.5, 0.4])
     env.rollout(20, actor)
-    path = tmp_path_factory.mktemp("teacher") / "hybrid.pt"
     torch.save({"config": dataclasses.asdict(cfg), "frames": 0,
                 "actor": actor.state_dict(), "obs_norm": inputs[-1].state_dict()}, path)
     return str(path)
+
+
+@pytest.fixture(scope="module")
+def teacher_path(tmp_path_factory) -> str:
+    """The hybrid: brake, steering clear, docking law."""
+    return write_checkpoint(tmp_path_factory.mktemp("teacher") / "hybrid.pt", HYBRID)
 
 
 def test_the_paper_env_driven_by_the_labels_follows_the_hybrid(teacher_path):
@@ -91,20 +107,76 @@ def test_a_teacher_without_aids_is_refused(tmp_path):
         Teacher(str(path), TransformedEnv(ParkingEnv(2, seed=0)))
 
 
-def test_asinh_loss_is_linear_below_the_precision_and_relative_above():
-    precision = torch.tensor([1e-4])
-    small = asinh_loss(torch.tensor([[2e-5]]), torch.tensor([[1e-5]]), precision)
-    assert small.item() == pytest.approx(0.1 ** 2, rel=0.03)
-    # a 10 % error weighs about the same at 1 m/s and at 1 cm/s
-    big = asinh_loss(torch.tensor([[1.1]]), torch.tensor([[1.0]]), precision)
-    mid = asinh_loss(torch.tensor([[1.1e-2]]), torch.tensor([[1e-2]]), precision)
-    assert big.item() == pytest.approx(mid.item(), rel=1e-2)
+def test_a_teacher_without_the_law_has_no_final_approach_to_label(tmp_path, capsys):
+    brake_only = [o for o in HYBRID if o != "agent.docking=true"]
+    path = write_checkpoint(tmp_path / "brake.pt", brake_only)
+    with pytest.raises(SystemExit):
+        main([path, "--out", str(tmp_path / "student"), "--envs", "4", "--steps", "2",
+              "--epochs", "1", "--yardstick", "2"])
+    assert "no docking law" in capsys.readouterr().err
+    main([path, "--out", str(tmp_path / "student"), "--envs", "4", "--steps", "2",
+          "--epochs", "1", "--yardstick", "2", "--approach", "0"])
+    assert (tmp_path / "student" / "checkpoint_final.pt").exists()
+
+
+def test_the_inverse_power_map_gives_what_the_map_turns_into_the_control():
+    high, exponents = torch.tensor([5.0, 0.785]), torch.tensor([3.0, 1.0])
+    control = torch.tensor([[1e-3, 0.0], [-2.0, 0.3], [4.9, -0.78], [-1e-4, 1e-4]])
+    u = power_map_inverse(control, high, exponents)
+    assert (u.abs() < 1).all()
+    assert u[0, 0].item() == pytest.approx((1e-3 / 5.0) ** (1 / 3))  # 1 mm/s: 0.058
+    td = PowerActionMap(high, exponents).inv(TensorDict({"action": u}, [4]))
+    torch.testing.assert_close(td["action"], control, rtol=1e-5, atol=1e-8)
+
+
+def test_approach_poses_lie_in_the_laws_settled_approach_denser_near_the_goal(teacher_path):
+    cfg, _ = load(teacher_path)
+    law = env_configs(cfg, training=False)[1].docking
+    goal = torch.tensor([[10.0, 5.0, 1.0], [3.0, -2.0, -2.5]]).repeat(2000, 1)
+    error = error_from_goal(approach_poses(goal, 2.0, law, torch.Generator().manual_seed(0)),
+                            goal)
+    assert ((error.remaining >= -1e-5) & (error.remaining <= 2.0 + 1e-5)).all()  # float32
+    assert (error.lateral.abs() <= law.settled_lateral + 1e-5).all()
+    assert (error.heading.abs() <= law.settled_heading + 1e-6).all()
+    assert error.lateral.min() < 0 < error.lateral.max()
+    # u ** 3: the median is an eighth of the bound, a tenth of the states within 2 mm
+    assert error.remaining.median().item() == pytest.approx(0.25, rel=0.1)
+    assert (error.remaining < 2e-3).float().mean().item() == pytest.approx(0.1, abs=0.02)
+
+
+def test_approach_states_carry_the_laws_forward_control(teacher_path):
+    cfg, _ = load(teacher_path)
+    law = env_configs(cfg, training=False)[1].docking
+    paper = ParkingEnv(64, seed=5, config=ParkingConfig(max_steps=200))
+    paper.occupancy = 0.9
+    features = GoalFrameFeatures()
+    env = TransformedEnv(paper, features)
+    teacher = Teacher(teacher_path, env)
+    inputs, labels = approach_states(env, features, teacher, 128, 2.0,
+                                     torch.Generator().manual_seed(1))
+    assert 0.8 * 128 <= inputs.shape[0] <= 128 and labels.shape == (inputs.shape[0], 2)
+    # the law's control at the state each input shows: goal minus pose, the two headings
+    dx, dy, cos_psi, sin_psi, v, cos_alpha, sin_alpha = inputs[:, :7].unbind(-1)
+    zero = torch.zeros_like(dx)
+    error = error_from_goal(torch.stack([zero, zero, torch.atan2(sin_psi, cos_psi)], -1),
+                            torch.stack([dx, dy, torch.atan2(sin_alpha, cos_alpha)], -1))
+    assert (error.lateral.abs() <= law.settled_lateral + 1e-5).all()
+    speed = labels[:, 0]
+    assert (speed > 0).all()  # driving in, never reversing
+    assert ((v >= 0) & (v <= 2 * speed + 1e-7)).all()  # what it came in with, up to twice
+    law_v, law_delta = docking_action(error, torch.zeros_like(dx, dtype=torch.bool), law,
+                                      paper.config.vehicle)
+    same = (labels - torch.stack([law_v, law_delta], -1)).abs().amax(-1) < 1e-4
+    assert same.float().mean() > 0.9  # the law's control, unless the brake steered
 
 
 @pytest.mark.parametrize("field, value", [("iterations", 0), ("iterations", True),
                                           ("envs", 1.5), ("near_goal", 2.0),
                                           ("noise", float("nan")), ("lr", -1.0),
-                                          ("speed_precision", 0.0)])
+                                          ("approach", -1), ("approach", 0.5),
+                                          ("approach_weight", 0.0),
+                                          ("speed_exponent", 0.5),
+                                          ("steer_exponent", float("inf"))])
 def test_bad_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=rf"DistillConfig\.{field}"):
         DistillConfig(**{field: value})
@@ -113,16 +185,18 @@ def test_bad_settings_are_refused_by_name(field, value):
 def test_a_run_writes_a_policy_alone_the_evaluator_reads(teacher_path, tmp_path, capsys):
     out = tmp_path / "student"
     args = [teacher_path, "--out", str(out), "--iterations", "2", "--envs", "8",
-            "--steps", "20", "--epochs", "1", "--yardstick", "4"]
+            "--steps", "20", "--epochs", "1", "--yardstick", "4", "--approach", "16"]
     main(args)
     cfg, checkpoint = load(str(out / "checkpoint_final.pt"))
     assert not (cfg.agent.emergency_brake or cfg.agent.docking)
-    assert cfg.agent.action_repeat == 1
+    assert cfg.agent.action_repeat == 1 and cfg.agent.action_exponents == [3.0, 1.0]
     made_of = composition(cfg, checkpoint)
-    assert made_of["agent"] == "policy alone" and made_of["policy"].startswith("DAgger")
+    assert made_of["agent"] == "policy alone"
+    assert made_of["policy"].startswith("distilled from the hybrid")
     assert checkpoint["frames"] == 2 * 6 * 20 * 8
     rows = (out / "dagger.csv").read_text().splitlines()
-    assert len(rows) == 3 and rows[0].startswith("iteration,frames")
+    assert len(rows) == 3 and rows[0].startswith("iteration,frames,approach_states")
+    assert 0.8 * 2 * 6 * 16 <= int(rows[2].split(",")[2]) <= 2 * 6 * 16
     with pytest.raises(SystemExit):
         main(args)  # the checkpoint exists: refused without --overwrite
     assert "--overwrite" in capsys.readouterr().err

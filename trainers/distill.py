@@ -1,24 +1,34 @@
 """A teacher-distilled policy: the hybrid agent (policy + emergency brake + docking law)
-distilled by DAgger into one network that drives the paper's env alone.
+distilled into one network that drives the paper's env alone.
 
-    python -m trainers.distill TEACHER --out DIR [--iterations 8] [--envs 128] [--steps 400]
-                                             [--epochs 3] [--seed 0] [--overwrite]
+    python -m trainers.distill TEACHER --out DIR [--iterations 1] [--envs 128] [--steps 400]
+                                             [--epochs 16] [--approach 32768] [--seed 0]
+                                             [--overwrite]
 
-Each iteration runs the current student (the teacher itself in the first) in lots at every
-occupancy level, half the starts near the goal, and labels every state it visits with the
+Each iteration runs a driver in lots at every occupancy level, half the starts near the
+goal: the teacher in the first (behaviour cloning; the default is this one iteration), the
+current student in the later ones (DAgger). It labels every state visited with the
 teacher's control there: its policy's action (deterministic, at every step of dt), replaced by
 the docking law in the funnel and steered clear or stopped by the brake
 (:func:`torchpark.aids.step.aided_control`), with the aids' state (the law's gear, the
 brake's flag) tracked along the student's path. The labels join the data and the student is
-fitted to all of it (DAgger: Ross, Gordon and Bagnell, 2011). Half the rows act with
-Gaussian noise (DART: Laskey et al., 2017), so the data holds the corrections back to the
-teacher's path.
+fitted to all of it (DAgger: Ross, Gordon and Bagnell, 2011). Half the rows drive with
+Gaussian noise on the control (DART: Laskey et al., 2017), so the data holds the
+corrections back to the teacher's path. What each setting did: docs/experiments.md.
+
+The last millimetre asks for speeds of mm/s, a ten-thousandth of the range, and a steering
+that lines the car up to 0.1 deg: a precision the rollouts alone teach badly (a few of their
+states are that close). Each iteration therefore also labels ``approach`` states per level
+drawn in the law's final approach (up to ``approach_reach`` m behind the goal, within the
+law's settled lateral and heading errors, denser the closer), weighted ``approach_weight``
+times a rollout state. And the student's speed passes through a power map
+(:class:`torchpark.aids.actions.PowerActionMap`, ``speed_exponent`` 3): 1 mm/s is 0.058 of
+its output's range, not 2e-4, so the squared error in the student's own units weighs the
+creep near the goal as it weighs the metres per second away from it.
 
 The student reads what the paper's agent can (the paper's observation and its goal-frame
 features, normalised; the observed speed's sign tells it which way the teacher's multi-point
-turn was going) and acts at every step of dt: no brake, no law, no held actions. Its speed
-error is measured on an asinh scale (``DistillConfig.speed_precision``): the last
-millimetre asks for speeds of mm/s, a ten-thousandth of the range.
+turn was going) and acts at every step of dt: no brake, no law, no held actions.
 
 Written into ``--out``: ``checkpoint_final.pt`` (a torchpark checkpoint:
 ``python -m trainers.evaluate DIR/checkpoint_final.pt``) and ``dagger.csv``, per iteration
@@ -41,13 +51,17 @@ from tensordict import TensorDict
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from torchpark.aids.actions import power_map, power_map_inverse
 from torchpark.aids.brake import steer_angles
-from torchpark.aids.config import BrakeConfig
+from torchpark.aids.config import BrakeConfig, DockingConfig
 from torchpark.aids.docking import error_from_goal
+from torchpark.aids.features import GoalFrameFeatures
+from torchpark.aids.starts import near_starts_free
 from torchpark.aids.step import AidedState, AidState, aided_control
 from torchpark.config import check_types, positive, require
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.runner import run_episodes
+from torchpark.sim.geometry import wrap_angle
 from trainers.config import AgentConfig, EnvConfig, LoggerConfig, TrainConfig, env_configs
 from trainers.evaluate import load
 from trainers.utils import build_models, make_base_env, make_policy, policy_input
@@ -68,18 +82,25 @@ class DistillConfig:
     ``release`` m outside the region it drives in (0 to ``run_in`` m behind the goal, within
     ``lateral`` m of the slot axis), and the teacher's policy labels there (None: the law
     keeps the wheel to the episode's end, as in the hybrid); ``yardstick``: episodes per
-    check after each iteration."""
+    check after each iteration; ``approach``: final-approach states labelled per level and
+    iteration (0: none), drawn up to ``approach_reach`` m behind the goal and weighted
+    ``approach_weight`` times a rollout state in the fit; ``speed_exponent`` /
+    ``steer_exponent``: the student's action map (u in [-1, 1] drives high * sign(u)
+    |u| ** exponent; the fit is the squared error in u)."""
 
-    iterations: int = 8
+    iterations: int = 1
     envs: int = 128
     steps: int = 400
-    epochs: int = 3
-    batch_size: int = 4096
+    epochs: int = 16
+    batch_size: int = 1024
     lr: float = 1e-3
     near_goal: float = 0.5
     noise: float = 0.05
-    speed_precision: float = 1.0
-    steer_precision: float = 1.0
+    approach: int = 32768
+    approach_reach: float = 2.0
+    approach_weight: float = 1.0
+    speed_exponent: float = 3.0
+    steer_exponent: float = 1.0
     release: float | None = None
     yardstick: int = 200
     seed: int = 0
@@ -91,8 +112,13 @@ class DistillConfig:
             value = getattr(self, name)
             require(1 <= value <= high, f"DistillConfig.{name}", f"an int in [1, {high}]",
                     value)
-        for name in ("lr", "speed_precision", "steer_precision"):
+        require(0 <= self.approach <= 1 << 20, "DistillConfig.approach",
+                "an int in [0, 1048576]", self.approach)
+        for name in ("lr", "approach_reach", "approach_weight"):
             positive(f"DistillConfig.{name}", getattr(self, name))
+        for name in ("speed_exponent", "steer_exponent"):
+            value = getattr(self, name)
+            require(1.0 <= value <= 8.0, f"DistillConfig.{name}", "in [1, 8]", value)
         require(0.0 <= self.near_goal <= 1.0, "DistillConfig.near_goal", "in [0, 1]",
                 self.near_goal)
         require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
@@ -158,62 +184,109 @@ class Teacher:
 
 def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
     """The student's TrainConfig: the paper's env and agent (no aid, one action per step of
-    dt) with the goal features and actions in [-1, 1], the teacher's network sizes; training
-    starts near the goal with probability ``near_goal``."""
+    dt) with the goal features and the power action map of ``speed_exponent`` /
+    ``steer_exponent``, the teacher's network sizes; training starts near the goal with
+    probability ``near_goal``."""
     tcfg, _ = load(teacher)
     student = TrainConfig(
         env=EnvConfig(num_envs=cfg.envs, max_steps=tcfg.env.max_steps),
-        agent=AgentConfig(action_exponents=[1.0, 1.0], goal_features=True),
+        agent=AgentConfig(action_exponents=[cfg.speed_exponent, cfg.steer_exponent],
+                          goal_features=True),
         model=tcfg.model, logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
     student.train.near_goal_starts = cfg.near_goal
     return student
 
 
-def asinh_loss(prediction: torch.Tensor, target: torch.Tensor, precision: torch.Tensor
-               ) -> torch.Tensor:
-    """Mean squared difference of asinh(x / precision): linear below ``precision`` (one
-    per action dimension), logarithmic above, so a speed of mm/s is fitted as closely,
-    relative to itself, as one of m/s."""
-    return (torch.asinh(prediction / precision) - torch.asinh(target / precision)).pow(2).mean()
+def approach_poses(goal: torch.Tensor, reach: float, law: DockingConfig,
+                   generator: torch.Generator) -> torch.Tensor:
+    """Rear-axle poses (N, 3) in the docking law's final approach to goal poses (N, 3): up to
+    ``reach`` m behind the goal along its axis, within ``law.settled_lateral`` m of the axis
+    and ``law.settled_heading`` rad of its heading, each as bound * u ** 3 (u uniform in
+    [0, 1], sides at random): denser the closer, down to the millimetres of the success
+    test."""
+    u = torch.rand(goal.shape[0], 3, generator=generator, device=goal.device).pow(3)
+    side = torch.where(torch.rand(goal.shape[0], 2, generator=generator, device=goal.device)
+                       < 0.5, -1.0, 1.0)
+    back = reach * u[:, 0]
+    lateral = law.settled_lateral * side[:, 0] * u[:, 1]
+    gx, gy, alpha = goal.unbind(-1)
+    c, s = torch.cos(alpha), torch.sin(alpha)
+    return torch.stack((gx - back * c - lateral * s, gy - back * s + lateral * c,
+                        wrap_angle(alpha + law.settled_heading * side[:, 1] * u[:, 2])), -1)
 
 
-def rollout(env: TransformedEnv, actor, teacher: Teacher, high: torch.Tensor, steps: int,
+def approach_states(env: TransformedEnv, features: GoalFrameFeatures, teacher: Teacher,
+                    count: int, reach: float, generator: torch.Generator
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """About ``count`` states of the docking law's final approach (:func:`approach_poses`)
+    in fresh lots of ``env`` at its occupancy, those where the car touches nothing, each
+    moving at the teacher's speed there times a uniform draw in [0, 2]: the observed speed
+    must not give the label away (a student fitted to labels near its observed speed copies
+    it, and stays at rest where an episode starts). Returns the student's raw inputs (B, D)
+    (``features`` of the observation) and the teacher's controls (B, 2): the law's, engaged
+    and driving forwards, or the brake's where it would collide."""
+    base, law = env.base_env, teacher.aids.docking
+    n = base.num_envs
+    inputs, labels = [], []
+    for _ in range(-(-count // n)):
+        env.reset()
+        sim = base.state
+        pose = approach_poses(sim.goal, reach, law, generator)
+        free = near_starts_free(pose[:, None], sim.goal, sim.present, base.world,
+                                base.config)[:, 0]
+        teacher.state = AidState.zeros(n, base.device)._replace(
+            docking_engaged=torch.ones(n, dtype=torch.bool, device=base.device))
+        control = teacher.label(base.set_state(sim._replace(pose=pose))["observation"])
+        scale = 2.0 * torch.rand(n, generator=generator, device=base.device)
+        moving = base.set_state(sim._replace(pose=pose, speed=control[:, 0] * scale))
+        inputs.append(features(moving)[STUDENT_INPUT][free])
+        labels.append(control[free])
+    return torch.cat(inputs), torch.cat(labels)
+
+
+def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tensor, steps: int,
             teacher_drives: bool, noise: float, generator: torch.Generator
             ) -> tuple[torch.Tensor, torch.Tensor]:
     """``steps`` steps of dt of ``env`` (every row reset first), driven by the teacher's
-    labels or the student's deterministic actions, noisy on every other row. Returns the
-    student's raw inputs (steps x N, D) and the teacher's labels there in [-1, 1] units."""
+    labels or the student's deterministic actions, noisy on every other row (Gaussian,
+    ``noise`` times the env's bounds, added to the env's action). Returns the student's raw
+    inputs (steps x N, D) and the teacher's labels there in the student's units (u, which
+    its power map with ``exponents`` turns into them)."""
     n = env.base_env.num_envs
+    high = env.base_env.action_spec.space.high[0]
     noisy = (torch.arange(n, device=env.device) % 2 == 1)[:, None]
     inputs, labels = [], []
     teacher.forget(torch.ones(n, dtype=torch.bool, device=env.device))
     td = env.reset()
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(steps):
-            target = (teacher.label(td["observation"]) / high).clamp(-0.999, 0.999)
+            target = power_map_inverse(teacher.label(td["observation"]), high, exponents)
             inputs.append(td[STUDENT_INPUT])
             labels.append(target)
             action = target if teacher_drives else actor(td)["action"]
             jitter = torch.randn(action.shape, generator=generator, device=action.device)
-            td["action"] = (action + noisy * noise * jitter).clamp(-1.0, 1.0)
+            control = power_map(action, high, exponents) + noisy * noise * high * jitter
+            td["action"] = power_map_inverse(control, high, exponents)
             td, td_next = env.step_and_maybe_reset(td)
             teacher.forget(td["next", "done"][:, 0])
             td = td_next
     return torch.cat(inputs), torch.cat(labels)
 
 
-def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, cfg: DistillConfig,
-        optim: torch.optim.Optimizer, precision: torch.Tensor, generator: torch.Generator
+def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor,
+        cfg: DistillConfig, optim: torch.optim.Optimizer, generator: torch.Generator
         ) -> float:
     """``cfg.epochs`` passes of minibatch regression of the student's deterministic action
-    (tanh of its loc) on the labels; returns the last epoch's mean loss."""
+    (tanh of its loc) on the labels (N, 2), squared error weighted per state (``weights``
+    (N,)); returns the last epoch's mean loss."""
     net = actor.module[0]
     losses = []
     for _ in range(cfg.epochs):
         losses = []
         for index in torch.randperm(inputs.shape[0], generator=generator).split(cfg.batch_size):
             td = norm(TensorDict({STUDENT_INPUT: inputs[index]}, [index.shape[0]]))
-            loss = asinh_loss(torch.tanh(net(td)["loc"]), labels[index], precision)
+            error = (torch.tanh(net(td)["loc"]) - labels[index]).pow(2).sum(-1)
+            loss = (weights[index] * error).mean()
             optim.zero_grad()
             loss.backward()
             optim.step()
@@ -252,26 +325,42 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     inputs = policy_input(scfg, base)
     env = TransformedEnv(base, Compose(*inputs))
     norm = inputs[-1]
+    features = next(t for t in inputs if isinstance(t, GoalFrameFeatures))
     teacher = Teacher(teacher_path, env, cfg.release)
+    if cfg.approach and teacher.aids.docking is None:
+        raise ValueError(f"teacher {teacher_path!r} has no docking law to label the final "
+                         f"approach with: pass --approach 0")
     actor, _ = build_models(scfg)
     high = base.action_spec.space.high[0]
-    precision = torch.tensor([cfg.speed_precision, cfg.steer_precision])
+    exponents = torch.tensor([cfg.speed_exponent, cfg.steer_exponent], device=base.device)
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
-    data_in, data_out, frames, rows = [], [], 0, []
+    data_in, data_out, data_weight, rows = [], [], [], []
+    frames = approach = 0
     started = time.perf_counter()
     for iteration in range(cfg.iterations):
+        batches = []
         for level in PAPER_LEVELS:
             base.occupancy = level
-            x, y = rollout(env, actor, teacher, high, cfg.steps, iteration == 0, cfg.noise,
-                           generator)
-            data_in.append(x)
-            data_out.append(y)
+            x, y = rollout(env, actor, teacher, exponents, cfg.steps, iteration == 0,
+                           cfg.noise, generator)
+            batches.append((x, y, 1.0))
             frames += x.shape[0]
         if iteration == 0:
             norm.freeze()  # the teacher's states set the student's input scale
-        x, y = torch.cat(data_in), torch.cat(data_out)
-        loss = fit(actor, norm.to_observation_norm(), x, y, cfg, optim, precision, generator)
-        row = {"iteration": iteration, "frames": frames, "samples": x.shape[0], "loss": loss,
+        for level in PAPER_LEVELS if cfg.approach else ():
+            base.occupancy = level
+            x, y = approach_states(env, features, teacher, cfg.approach, cfg.approach_reach,
+                                   generator)
+            batches.append((x, power_map_inverse(y, high, exponents), cfg.approach_weight))
+            approach += x.shape[0]
+        for x, y, weight in batches:
+            data_in.append(x)
+            data_out.append(y)
+            data_weight.append(torch.full((x.shape[0],), weight, device=x.device))
+        x, y, w = torch.cat(data_in), torch.cat(data_out), torch.cat(data_weight)
+        loss = fit(actor, norm.to_observation_norm(), x, y, w, cfg, optim, generator)
+        row = {"iteration": iteration, "frames": frames, "approach_states": approach,
+               "samples": x.shape[0], "loss": loss,
                **check(actor, scfg, norm.state_dict(), cfg.yardstick, cfg.seed + 1000),
                "wall_s": time.perf_counter() - started}
         rows.append(row)
@@ -284,8 +373,10 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
         path = out / "checkpoint_final.pt"
         torch.save({"config": dataclasses.asdict(scfg), "frames": frames,
                     "actor": actor.state_dict(), "obs_norm": norm.state_dict(),
-                    "trained_by": f"DAgger from the hybrid {teacher_path}, {iteration + 1} "
-                                  f"iterations, {frames:,} labelled frames"}, path)
+                    "trained_by": f"distilled from the hybrid {teacher_path}: "
+                                  f"{iteration + 1} iteration(s) (DAgger after the first), "
+                                  f"{frames:,} labelled frames and {approach:,} "
+                                  f"final-approach states"}, path)
     return path
 
 

@@ -17,6 +17,21 @@ from torchrl.data import Bounded, Composite, TensorSpec
 from torchrl.envs.transforms import Transform
 
 
+def power_map(u: Tensor, high: Tensor, exponents: Tensor) -> Tensor:
+    """Policy actions u [..., D] (clamped to [-1, 1]) -> env actions high * sign(u) |u| **
+    exponents; ``high``, ``exponents`` (D,)."""
+    u = u.clamp(-1.0, 1.0)
+    return high * torch.sign(u) * u.abs().pow(exponents)
+
+
+def power_map_inverse(action: Tensor, high: Tensor, exponents: Tensor) -> Tensor:
+    """Env actions [..., D] -> the policy actions u that :func:`power_map` turns into them,
+    sign(a) |a / high| ** (1 / exponents), kept inside (-1, 1) (|u| <= 0.999: a tanh
+    policy's loc stays finite)."""
+    y = (action / high).clamp(-0.999, 0.999)
+    return torch.sign(y) * y.abs().pow(1.0 / exponents)
+
+
 class PowerActionMap(Transform):
     """Maps the policy's action u in [-1, 1]^D to ``high * sign(u) |u| ** exponents``.
 
@@ -45,8 +60,7 @@ class PowerActionMap(Transform):
         self.register_buffer("exponents", exponents)
 
     def _inv_apply_transform(self, action: Tensor) -> Tensor:
-        u = action.clamp(-1.0, 1.0)
-        return self.high * torch.sign(u) * u.abs().pow(self.exponents)
+        return power_map(action, self.high, self.exponents)
 
     def transform_action_spec(self, action_spec: TensorSpec) -> TensorSpec:
         if isinstance(action_spec, Composite):
