@@ -2,7 +2,7 @@
 distilled into one network that drives the paper's env alone.
 
     python -m trainers.distill TEACHER --out DIR [--iterations 1] [--envs 128] [--steps 400]
-                                             [--epochs 16] [--approach 32768] [--seed 0]
+                                             [--epochs 32] [--approach 32768] [--seed 0]
                                              [--overwrite]
 
 Each iteration runs a driver in lots at every occupancy level, half the starts near the
@@ -91,7 +91,7 @@ class DistillConfig:
     iterations: int = 1
     envs: int = 128
     steps: int = 400
-    epochs: int = 16
+    epochs: int = 32
     batch_size: int = 1024
     lr: float = 1e-3
     near_goal: float = 0.5
