@@ -1,14 +1,17 @@
-"""PowerActionMap: the policy's [-1, 1] actions mapped to the env's, spec and errors."""
+"""PowerActionMap: the policy's [-1, 1] actions mapped to the env's, spec and errors;
+GearActionMap: a gear picks one of two (speed, steer) pairs."""
 
 from __future__ import annotations
 
 import pytest
 import torch
-from torchrl.envs import TransformedEnv
+from hypothesis import given
+from hypothesis import strategies as st
+from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
 from torchpark import ParkingEnv
-from torchpark.aids.actions import PowerActionMap
+from torchpark.aids.actions import GearActionMap, PowerActionMap, gear_inverse, gear_select
 
 
 def make(exponents=(3.0, 1.0)) -> TransformedEnv:
@@ -55,4 +58,41 @@ def test_bad_arguments_raise(high, exponents, match):
 def test_a_map_of_another_width_is_refused_by_the_env():
     env = TransformedEnv(ParkingEnv(2), PowerActionMap([5.0, 0.785, 1.0], [3.0, 1.0, 1.0]))
     with pytest.raises(ValueError, match="action has 2 dimensions"):
+        env.rand_step(env.reset())
+
+
+def test_the_gear_picks_its_pair_and_a_pair_at_or_below_zero_holds():
+    u = torch.tensor([[0.5, 0.8, -0.3, 0.9, 0.7],    # forwards: the first pair
+                      [-0.5, 0.8, -0.3, 0.9, 0.7],   # reverse: the second, speed negated
+                      [0.0, -0.4, 0.2, 0.9, 0.7],    # gear 0 is forwards; speed <= 0 holds
+                      [-1.0, 0.8, -0.3, -0.2, 0.1]])  # reverse, held
+    expected = torch.tensor([[0.8, -0.3], [-0.9, 0.7], [0.0, 0.2], [0.0, 0.1]])
+    assert torch.equal(gear_select(u), expected)
+
+
+unit = st.floats(-1.0, 1.0, allow_nan=False, width=32)
+
+
+@given(speed=unit, steer=unit)
+def test_the_gear_inverse_gives_the_action_the_gear_map_turns_back(speed, steer):
+    u = torch.tensor([[speed, steer]])
+    assert torch.equal(gear_select(gear_inverse(u)), u)
+
+
+def test_the_gear_head_acts_in_five_unit_dimensions_and_reverses():
+    env = TransformedEnv(ParkingEnv(4, seed=0),
+                         Compose(PowerActionMap([5.0, 0.785], [3.0, 1.0]), GearActionMap()))
+    assert env.action_spec.shape == (4, 5)
+    assert torch.equal(env.action_spec.space.high, torch.ones(4, 5))
+    check_env_specs(env)
+    td = env.reset()
+    u = torch.tensor([[1.0, 0.5, 0.0, 1.0, 0.0], [-1.0, 0.5, 0.0, 1.0, 0.0],
+                      [-0.1, 1.0, 0.0, 0.1, 0.0], [0.3, -1.0, 0.0, 1.0, 0.0]])
+    env.step(td.set("action", u))
+    assert torch.allclose(env.base_env.state.speed, torch.tensor([0.625, -5.0, -5e-3, 0.0]))
+
+
+def test_a_gear_map_on_an_env_in_metres_per_second_is_refused():
+    env = TransformedEnv(ParkingEnv(2), GearActionMap())
+    with pytest.raises(ValueError, match=r"GearActionMap needs an env acting in \[-1, 1\]\^2"):
         env.rand_step(env.reset())

@@ -15,7 +15,7 @@ from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchpark import ParkingConfig, ParkingEnv
-from torchpark.aids.actions import PowerActionMap, power_map_inverse
+from torchpark.aids.actions import PowerActionMap, gear_inverse, power_map_inverse
 from torchpark.aids.docking import docking_action, error_from_goal, in_funnel
 from torchpark.aids.features import GoalFrameFeatures
 from trainers.config import env_configs, load_config
@@ -24,6 +24,7 @@ from trainers.distill import (
     Teacher,
     approach_poses,
     approach_states,
+    imitation_error,
     main,
 )
 from trainers.evaluate import composition, load
@@ -176,7 +177,8 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("approach", -1), ("approach", 0.5),
                                           ("approach_weight", 0.0),
                                           ("speed_exponent", 0.5),
-                                          ("steer_exponent", float("inf"))])
+                                          ("steer_exponent", float("inf")),
+                                          ("dagger_epochs", 0), ("gear_head", 1)])
 def test_bad_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=rf"DistillConfig\.{field}"):
         DistillConfig(**{field: value})
@@ -185,21 +187,52 @@ def test_bad_settings_are_refused_by_name(field, value):
 def test_a_run_writes_a_policy_alone_the_evaluator_reads(teacher_path, tmp_path, capsys):
     out = tmp_path / "student"
     args = [teacher_path, "--out", str(out), "--iterations", "2", "--envs", "8",
-            "--steps", "20", "--epochs", "1", "--yardstick", "4", "--approach", "16"]
+            "--steps", "20", "--epochs", "1", "--dagger-epochs", "1", "--yardstick", "4",
+            "--approach", "16"]
     main(args)
     cfg, checkpoint = load(str(out / "checkpoint_final.pt"))
     assert not (cfg.agent.emergency_brake or cfg.agent.docking)
     assert cfg.agent.action_repeat == 1 and cfg.agent.action_exponents == [3.0, 1.0]
+    assert cfg.agent.gear_head
     made_of = composition(cfg, checkpoint)
     assert made_of["agent"] == "policy alone"
-    assert made_of["policy"].startswith("distilled from the hybrid")
+    assert made_of["policy"].startswith("distilled (gear head) from the hybrid")
     assert checkpoint["frames"] == 2 * 6 * 20 * 8
+    env = make_eval_env(cfg, checkpoint["obs_norm"], 0.9, 4, seed=0)
+    assert env.action_spec.shape == (4, 5)
+    env.rollout(3, make_policy(cfg, checkpoint["actor"]))
     rows = (out / "dagger.csv").read_text().splitlines()
     assert len(rows) == 3 and rows[0].startswith("iteration,frames,approach_states")
-    assert 0.8 * 2 * 6 * 16 <= int(rows[2].split(",")[2]) <= 2 * 6 * 16
+    # the final approach is labelled in the first iteration only
+    assert 0.8 * 6 * 16 <= int(rows[1].split(",")[2]) == int(rows[2].split(",")[2]) <= 6 * 16
     with pytest.raises(SystemExit):
         main(args)  # the checkpoint exists: refused without --overwrite
     assert "--overwrite" in capsys.readouterr().err
+
+
+def test_without_the_gear_head_the_student_acts_in_two_dimensions(teacher_path, tmp_path):
+    out = tmp_path / "plain"
+    main([teacher_path, "--out", str(out), "--iterations", "2", "--envs", "4", "--steps",
+          "5", "--epochs", "1", "--dagger-epochs", "1", "--yardstick", "2", "--approach", "0",
+          "--no-gear-head"])
+    cfg, checkpoint = load(str(out / "checkpoint_final.pt"))
+    assert not cfg.agent.gear_head and cfg.agent.action_exponents == [3.0, 1.0]
+    assert make_eval_env(cfg, checkpoint["obs_norm"], 0.0, 2, seed=0).action_spec.shape == (2, 2)
+
+
+def test_a_gear_head_is_scored_on_its_gear_and_that_gears_pair_only():
+    label = torch.tensor([[0.6, -0.2], [-0.4, 0.5], [0.0, 0.1]])
+    exact = gear_inverse(label)
+    assert torch.equal(imitation_error(exact, label), torch.zeros(3))
+    other = exact.clone()
+    other[0, 3:], other[1, 1:3] = torch.tensor([0.9, 0.9]), torch.tensor([-0.7, 0.3])
+    assert torch.equal(imitation_error(other, label), torch.zeros(3))  # the unused pairs
+    wrong = exact.clone()
+    wrong[:, 0] = -wrong[:, 0]
+    assert torch.allclose(imitation_error(wrong, label), torch.full((3,), 4.0))
+    # the mean of the two gears' answers, which a plain student outputs, costs it
+    plain = torch.tensor([[0.1, 0.15]])
+    assert imitation_error(plain, label[:1]).item() == pytest.approx(0.5 ** 2 + 0.35 ** 2)
 
 
 def test_release_lets_the_law_go_of_a_student_far_from_its_slot(teacher_path):

@@ -158,7 +158,7 @@ def test_evaluation_table_has_the_stated_columns(smoke_run, tmp_path):
 def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     """Every training option off the paper's path at once: held actions, the cubic speed map,
     near-goal starts, the emergency brake, a state-dependent std, the success curriculum,
-    the docking layer, the brake steering clear and the policy seeing it."""
+    the docking layer, the brake steering clear and the policy seeing it, the gear head."""
     cfg = load_config("smoke", [
         f"logger.log_dir={tmp_path}", "agent.action_repeat=2",
         "agent.action_exponents=[3.0,1.0]", "train.near_goal_starts=0.5",
@@ -167,6 +167,7 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
         "collector.total_frames=4096", "curriculum.success_start=1000.0",
         "train.brake_penalty=-1.0", "curriculum.success_window=1024", "agent.docking=true",
         "agent.docking_lateral=1.0", "agent.steer_clear=5", "agent.observe_brake=true",
+        "agent.gear_head=true",
     ])
     final = train(cfg)
     ckpt = torch.load(final, weights_only=True)
@@ -236,6 +237,7 @@ def test_action_repeat_must_divide_the_batch():
     ("agent.emergency_brake=maybe", "emergency_brake"),
     ("agent.observe_brake=true", "agent.observe_brake"),
     ("agent.steer_clear=5", "agent.steer_clear"),
+    ("agent.gear_head=true", "agent.gear_head"),
     *([] if torch.cuda.is_available() else [("env.device=cuda", "env.device")]),
 ])
 def test_a_bad_training_field_is_one_line_naming_it(override, name, capsys):

@@ -5,7 +5,7 @@ functions; ``torchpark.aids`` the agent-side aids (``ParkingEnv(..., aids=AidsCo
 ``torchpark.media`` pictures and videos.
 """
 
-from torchpark.aids.actions import PowerActionMap
+from torchpark.aids.actions import GearActionMap, PowerActionMap
 from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts
 from torchpark.aids.features import GoalFrameFeatures
 from torchpark.aids.success_curriculum import SuccessCurriculum
@@ -21,6 +21,7 @@ __all__ = [
     "AidsConfig",
     "BrakeConfig",
     "DockingConfig",
+    "GearActionMap",
     "GoalFrameFeatures",
     "LidarConfig",
     "LotConfig",

@@ -42,6 +42,9 @@ class AgentConfig:
     # and the env receives (max_speed, max_steer) * sign(u) |u| ** exponents
     # (torchpark.PowerActionMap), e.g. [3, 1] for fine speed control near standstill.
     action_exponents: list[float] | None = None
+    # With action_exponents: the policy outputs a gear and a (speed, steer) pair per gear
+    # (torchpark.GearActionMap, 5 dims); the gear's sign picks forwards or reverse.
+    gear_head: bool = False
     # Append the goal seen from the car (torchpark.GoalFrameFeatures) to the policy's input.
     goal_features: bool = False
     # The emergency brake (torchpark.BrakeConfig): a step that would collide is not taken.
@@ -343,6 +346,9 @@ def _check(cfg: TrainConfig) -> None:
     _require(not cfg.agent.observe_brake or cfg.agent.emergency_brake, "agent.observe_brake",
              "False without agent.emergency_brake (there is no brake flag to observe)",
              cfg.agent.observe_brake)
+    _require(not cfg.agent.gear_head or cfg.agent.action_exponents is not None,
+             "agent.gear_head", "False without agent.action_exponents (the gear picks a pair "
+             "of [-1, 1] actions for the power map)", cfg.agent.gear_head)
     _require(cfg.agent.steer_clear == 0 or cfg.agent.emergency_brake, "agent.steer_clear",
              "0 without agent.emergency_brake", cfg.agent.steer_clear)
     n, batch, k = cfg.env.num_envs, cfg.collector.frames_per_batch, cfg.agent.action_repeat

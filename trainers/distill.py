@@ -1,30 +1,39 @@
 """A teacher-distilled policy: the hybrid agent (policy + emergency brake + docking law)
 distilled into one network that drives the paper's env alone.
 
-    python -m trainers.distill TEACHER --out DIR [--iterations 1] [--envs 128] [--steps 400]
-                                             [--epochs 32] [--approach 32768] [--seed 0]
-                                             [--overwrite]
+    python -m trainers.distill TEACHER --out DIR [--iterations 2] [--envs 128] [--steps 400]
+                                             [--epochs 32] [--dagger-epochs 16]
+                                             [--approach 32768] [--seed 0] [--overwrite]
 
 Each iteration runs a driver in lots at every occupancy level, half the starts near the
-goal: the teacher in the first (behaviour cloning; the default is this one iteration), the
-current student in the later ones (DAgger). It labels every state visited with the
+goal: the teacher in the first (behaviour cloning), the current student in the later ones
+(DAgger). It labels every state visited with the
 teacher's control there: its policy's action (deterministic, at every step of dt), replaced by
 the docking law in the funnel and steered clear or stopped by the brake
 (:func:`torchpark.aids.step.aided_control`), with the aids' state (the law's gear, the
 brake's flag) tracked along the student's path. The labels join the data and the student is
-fitted to all of it (DAgger: Ross, Gordon and Bagnell, 2011). Half the rows drive with
+fitted to all of it (DAgger: Ross, Gordon and Bagnell, 2011): ``epochs`` passes after the
+first iteration, ``dagger_epochs`` after each later one. Half the rows drive with
 Gaussian noise on the control (DART: Laskey et al., 2017), so the data holds the
 corrections back to the teacher's path. What each setting did: docs/experiments.md.
 
 The last millimetre asks for speeds of mm/s, a ten-thousandth of the range, and a steering
 that lines the car up to 0.1 deg: a precision the rollouts alone teach badly (a few of their
-states are that close). Each iteration therefore also labels ``approach`` states per level
+states are that close). The first iteration therefore also labels ``approach`` states per level
 drawn in the law's final approach (up to ``approach_reach`` m behind the goal, within the
 law's settled lateral and heading errors, denser the closer), weighted ``approach_weight``
 times a rollout state. And the student's speed passes through a power map
 (:class:`torchpark.aids.actions.PowerActionMap`, ``speed_exponent`` 3): 1 mm/s is 0.058 of
 its output's range, not 2e-4, so the squared error in the student's own units weighs the
 creep near the goal as it weighs the metres per second away from it.
+
+Where the teacher turns a multi-point manoeuvre (its docking law reverses out of a slot it
+entered crooked, its brake stops it at a car), states it drives forwards from and states it
+reverses from look alike to the student: regressed onto both, a student outputs their mean,
+a speed near 0, and freezes there (85 % of its episodes from uniform starts did, before).
+With ``gear_head`` (the default) the student outputs a gear and a (speed, steer) pair per
+gear (:class:`torchpark.aids.actions.GearActionMap`), fitted to the label's gear (its speed's
+sign) and, for that gear's pair only, to the label: the gear's sign picks one answer.
 
 The student reads what the paper's agent can (the paper's observation and its goal-frame
 features, normalised; the observed speed's sign tells it which way the teacher's multi-point
@@ -51,7 +60,15 @@ from tensordict import TensorDict
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchpark.aids.actions import power_map, power_map_inverse
+from torchpark.aids.actions import (
+    GEAR_DIM,
+    GearActionMap,
+    PowerActionMap,
+    gear_inverse,
+    gear_select,
+    power_map,
+    power_map_inverse,
+)
 from torchpark.aids.brake import steer_angles
 from torchpark.aids.config import BrakeConfig, DockingConfig
 from torchpark.aids.docking import error_from_goal
@@ -76,22 +93,23 @@ class DistillConfig:
     """DAgger's schedule. ``envs`` lots per rollout, ``steps`` steps of dt at each occupancy
     level per iteration; ``near_goal``: the fraction of starts near the goal (the teacher's
     training box); ``noise``: the std of the Gaussian noise on the noisy rows' actions (in
-    [-1, 1] units); ``speed_precision`` / ``steer_precision``: below these (in [-1, 1]
-    units) the loss compares actions linearly, above logarithmically (1: about the squared
-    error); ``release``: the teacher's docking law lets go of a student more than
+    [-1, 1] units); ``release``: the teacher's docking law lets go of a student more than
     ``release`` m outside the region it drives in (0 to ``run_in`` m behind the goal, within
     ``lateral`` m of the slot axis), and the teacher's policy labels there (None: the law
     keeps the wheel to the episode's end, as in the hybrid); ``yardstick``: episodes per
-    check after each iteration; ``approach``: final-approach states labelled per level and
-    iteration (0: none), drawn up to ``approach_reach`` m behind the goal and weighted
-    ``approach_weight`` times a rollout state in the fit; ``speed_exponent`` /
+    check after each iteration; ``approach``: final-approach states labelled per level in
+    the first iteration (0: none), drawn up to ``approach_reach`` m behind the goal and
+    weighted ``approach_weight`` times a rollout state in the fit; ``speed_exponent`` /
     ``steer_exponent``: the student's action map (u in [-1, 1] drives high * sign(u)
-    |u| ** exponent; the fit is the squared error in u)."""
+    |u| ** exponent; the fit is the squared error in u); ``gear_head``: the student picks
+    a gear and a (speed, steer) per gear (:func:`imitation_error`); ``epochs`` /
+    ``dagger_epochs``: passes over the data after the first / each later iteration."""
 
-    iterations: int = 1
+    iterations: int = 2
     envs: int = 128
     steps: int = 400
     epochs: int = 32
+    dagger_epochs: int = 16
     batch_size: int = 1024
     lr: float = 1e-3
     near_goal: float = 0.5
@@ -101,6 +119,7 @@ class DistillConfig:
     approach_weight: float = 1.0
     speed_exponent: float = 3.0
     steer_exponent: float = 1.0
+    gear_head: bool = True
     release: float | None = None
     yardstick: int = 200
     seed: int = 0
@@ -108,7 +127,8 @@ class DistillConfig:
     def __post_init__(self) -> None:
         check_types(self)
         for name, high in (("iterations", 1000), ("envs", 65536), ("steps", 100_000),
-                           ("epochs", 1000), ("batch_size", 1 << 20), ("yardstick", 65536)):
+                           ("epochs", 1000), ("dagger_epochs", 1000), ("batch_size", 1 << 20),
+                           ("yardstick", 65536)):
             value = getattr(self, name)
             require(1 <= value <= high, f"DistillConfig.{name}", f"an int in [1, {high}]",
                     value)
@@ -129,8 +149,8 @@ class DistillConfig:
 class Teacher:
     """A hybrid checkpoint's control at any state of a paper's env (its lots, its world).
 
-    ``label(sim, observation)`` returns the (N, 2) control (v m/s, delta rad) the hybrid
-    agent would drive with there, and advances the aids' state (the docking law's gear, the
+    ``label(observation)`` returns the (N, 2) control (v m/s, delta rad) the hybrid agent
+    would drive with there, and advances the aids' state (the docking law's gear, the
     brake's flag) as if it had; ``forget(rows)`` clears it where episodes ended."""
 
     def __init__(self, path: str, env: TransformedEnv, release: float | None = None) -> None:
@@ -147,8 +167,9 @@ class Teacher:
         inputs = policy_input(cfg, probe)
         inputs[-1].load_state_dict(checkpoint["obs_norm"])
         TransformedEnv(probe, Compose(*inputs))  # binds the normaliser's specs
-        self.action_map = inputs[0] if cfg.agent.action_exponents is not None else None
-        self.inputs = Compose(*[t.clone() for t in inputs[int(self.action_map is not None):-1]],
+        # The action maps lead policy_input's list; their inverses apply last to first.
+        self.action_maps = [t for t in inputs if isinstance(t, (PowerActionMap, GearActionMap))]
+        self.inputs = Compose(*[t.clone() for t in inputs[len(self.action_maps):-1]],
                               inputs[-1].to_observation_norm())
         self.angles = steer_angles(self.base.config, self.aids.brake or BrakeConfig(),
                                    self.base.device)
@@ -170,9 +191,9 @@ class Teacher:
                         [n])
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             td = self.actor(self.inputs(td))
+        for action_map in reversed(self.action_maps):
+            td = action_map.inv(td)
         action = td["action"]
-        if self.action_map is not None:
-            action = self.action_map.inv(td)["action"]
         control = aided_control(AidedState(sim, self.state), action,
                                 self.base.world, self.angles, self.base.config, self.aids)
         self.state = control.aids
@@ -191,7 +212,7 @@ def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
     student = TrainConfig(
         env=EnvConfig(num_envs=cfg.envs, max_steps=tcfg.env.max_steps),
         agent=AgentConfig(action_exponents=[cfg.speed_exponent, cfg.steer_exponent],
-                          goal_features=True),
+                          gear_head=cfg.gear_head, goal_features=True),
         model=tcfg.model, logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
     student.train.near_goal_starts = cfg.near_goal
     return student
@@ -250,8 +271,10 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tenso
     """``steps`` steps of dt of ``env`` (every row reset first), driven by the teacher's
     labels or the student's deterministic actions, noisy on every other row (Gaussian,
     ``noise`` times the env's bounds, added to the env's action). Returns the student's raw
-    inputs (steps x N, D) and the teacher's labels there in the student's units (u, which
-    its power map with ``exponents`` turns into them)."""
+    inputs (steps x N, D) and the teacher's labels there in the student's units (u, the
+    (speed, steer) its power map with ``exponents`` turns into them, which a gear head
+    picks by :func:`~torchpark.aids.actions.gear_select`)."""
+    gear = env.action_spec.shape[-1] == GEAR_DIM
     n = env.base_env.num_envs
     high = env.base_env.action_spec.space.high[0]
     noisy = (torch.arange(n, device=env.device) % 2 == 1)[:, None]
@@ -263,29 +286,48 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tenso
             target = power_map_inverse(teacher.label(td["observation"]), high, exponents)
             inputs.append(td[STUDENT_INPUT])
             labels.append(target)
-            action = target if teacher_drives else actor(td)["action"]
+            action = target
+            if not teacher_drives:
+                action = actor(td)["action"]
+                action = gear_select(action) if gear else action
             jitter = torch.randn(action.shape, generator=generator, device=action.device)
             control = power_map(action, high, exponents) + noisy * noise * high * jitter
-            td["action"] = power_map_inverse(control, high, exponents)
+            action = power_map_inverse(control, high, exponents)
+            td["action"] = gear_inverse(action) if gear else action
             td, td_next = env.step_and_maybe_reset(td)
             teacher.forget(td["next", "done"][:, 0])
             td = td_next
     return torch.cat(inputs), torch.cat(labels)
 
 
+def imitation_error(u: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
+    """The squared error (N,) of the student's actions u against the teacher's labels (N, 2)
+    (speed, steer), all in [-1, 1]. A plain student's u (N, 2) is compared as it is; a gear
+    head's (N, 5) (:func:`~torchpark.aids.actions.gear_select`) on its gear against the
+    label's (+1 where the label's speed >= 0, else -1) and on that gear's pair only against
+    (|speed|, steer): the other gear's pair is not pulled toward an answer it never gives."""
+    if u.shape[-1] != GEAR_DIM:
+        return (u - label).pow(2).sum(-1)
+    forward = label[:, 0] >= 0
+    speed = torch.where(forward, u[:, 1], u[:, 3])
+    steer = torch.where(forward, u[:, 2], u[:, 4])
+    return ((u[:, 0] - torch.where(forward, 1.0, -1.0)).pow(2)
+            + (speed - label[:, 0].abs()).pow(2) + (steer - label[:, 1]).pow(2))
+
+
 def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor,
-        cfg: DistillConfig, optim: torch.optim.Optimizer, generator: torch.Generator
-        ) -> float:
-    """``cfg.epochs`` passes of minibatch regression of the student's deterministic action
-    (tanh of its loc) on the labels (N, 2), squared error weighted per state (``weights``
-    (N,)); returns the last epoch's mean loss."""
+        epochs: int, cfg: DistillConfig, optim: torch.optim.Optimizer,
+        generator: torch.Generator) -> float:
+    """``epochs`` passes of minibatch regression of the student's deterministic action (tanh
+    of its loc) on the labels (N, 2) (:func:`imitation_error`, weighted per state by
+    ``weights`` (N,)); returns the last epoch's mean loss."""
     net = actor.module[0]
     losses = []
-    for _ in range(cfg.epochs):
+    for _ in range(epochs):
         losses = []
         for index in torch.randperm(inputs.shape[0], generator=generator).split(cfg.batch_size):
             td = norm(TensorDict({STUDENT_INPUT: inputs[index]}, [index.shape[0]]))
-            error = (torch.tanh(net(td)["loc"]) - labels[index]).pow(2).sum(-1)
+            error = imitation_error(torch.tanh(net(td)["loc"]), labels[index])
             loss = (weights[index] * error).mean()
             optim.zero_grad()
             loss.backward()
@@ -347,7 +389,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
             frames += x.shape[0]
         if iteration == 0:
             norm.freeze()  # the teacher's states set the student's input scale
-        for level in PAPER_LEVELS if cfg.approach else ():
+        for level in PAPER_LEVELS if cfg.approach and iteration == 0 else ():
             base.occupancy = level
             x, y = approach_states(env, features, teacher, cfg.approach, cfg.approach_reach,
                                    generator)
@@ -358,7 +400,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
             data_out.append(y)
             data_weight.append(torch.full((x.shape[0],), weight, device=x.device))
         x, y, w = torch.cat(data_in), torch.cat(data_out), torch.cat(data_weight)
-        loss = fit(actor, norm.to_observation_norm(), x, y, w, cfg, optim, generator)
+        epochs = cfg.epochs if iteration == 0 else cfg.dagger_epochs
+        loss = fit(actor, norm.to_observation_norm(), x, y, w, epochs, cfg, optim, generator)
         row = {"iteration": iteration, "frames": frames, "approach_states": approach,
                "samples": x.shape[0], "loss": loss,
                **check(actor, scfg, norm.state_dict(), cfg.yardstick, cfg.seed + 1000),
@@ -373,7 +416,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
         path = out / "checkpoint_final.pt"
         torch.save({"config": dataclasses.asdict(scfg), "frames": frames,
                     "actor": actor.state_dict(), "obs_norm": norm.state_dict(),
-                    "trained_by": f"distilled from the hybrid {teacher_path}: "
+                    "trained_by": f"distilled{' (gear head)' if cfg.gear_head else ''} from "
+                                  f"the hybrid {teacher_path}: "
                                   f"{iteration + 1} iteration(s) (DAgger after the first), "
                                   f"{frames:,} labelled frames and {approach:,} "
                                   f"final-approach states"}, path)
@@ -389,9 +433,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--overwrite", action="store_true",
                         help="replace a checkpoint already in --out (refused by default)")
     for field in dataclasses.fields(DistillConfig):
+        flag = f"--{field.name.replace('_', '-')}"
+        if isinstance(field.default, bool):  # --gear-head / --no-gear-head
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction,
+                                default=field.default)
+            continue
         kind = float if field.default is None else type(field.default)
-        parser.add_argument(f"--{field.name.replace('_', '-')}", type=kind,
-                            default=field.default)
+        parser.add_argument(flag, type=kind, default=field.default)
     args = parser.parse_args(argv)
     out = Path(args.out)
     if (out / "checkpoint_final.pt").exists() and not args.overwrite:

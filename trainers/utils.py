@@ -30,6 +30,7 @@ from torchrl.envs import (
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
 from torchpark import (
+    GearActionMap,
     GoalFrameFeatures,
     OccupancyCurriculum,
     ParkingEnv,
@@ -158,8 +159,8 @@ NORM_DECAY = 0.9999
 
 
 def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[Transform]:
-    """The transforms between the env and the networks: the optional action map (onto the
-    env's own action bounds), then from the raw observation (with the optional goal features
+    """The transforms between the env and the networks: the optional action maps (the power
+    map onto the env's own action bounds, the gear head above it), then from the raw observation (with the optional goal features
     and brake flag) to the networks' input ``NORMALISED`` (last).
 
     Normalised into its own key: the networks read it, while the raw observation stays in the
@@ -177,6 +178,8 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
     if agent.action_exponents is not None:
         high = base.action_spec.space.high.reshape(-1, base.action_spec.shape[-1])[0]
         transforms.append(PowerActionMap(high.cpu(), agent.action_exponents))
+        if agent.gear_head:
+            transforms.append(GearActionMap())
     if agent.goal_features:
         transforms.append(GoalFrameFeatures("observation", "observation_policy"))
         source = ["observation_policy"]
