@@ -160,8 +160,9 @@ NORM_DECAY = 0.9999
 
 def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[Transform]:
     """The transforms between the env and the networks: the optional action maps (the power
-    map onto the env's own action bounds, the gear head above it), then from the raw observation (with the optional goal features
-    and brake flag) to the networks' input ``NORMALISED`` (last).
+    map onto the env's own action bounds, the gear head above it), then from the raw
+    observation (with the optional goal features and brake flag) to the networks' input
+    ``NORMALISED`` (last).
 
     Normalised into its own key: the networks read it, while the raw observation stays in the
     data for evaluation and analysis (final position and heading errors). reduce_batch_dims:
