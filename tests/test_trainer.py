@@ -4,22 +4,25 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import math
 
 import imageio.v3 as iio
 import pytest
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from tensordict import TensorDict
+from torchrl.data import Bounded
 
 from torchpark import (
     DockingConfig,
     ParkingConfig,
 )
 from torchpark.aids.features import GOAL_FEATURES
-from trainers.config import env_configs, load_config
+from trainers.config import ModelConfig, env_configs, load_config
 from trainers.evaluate import COLUMNS, evaluate
 from trainers.evaluate import main as evaluate_main
 from trainers.ppo import main, train
-from trainers.utils import make_env
+from trainers.utils import NORMALISED, make_env, make_ppo_models, reset_exploration
 
 TAGS = {
     "episode/reward", "episode/length", "episode/success_rate", "episode/collision_rate",
@@ -75,6 +78,62 @@ def test_a_resumed_run_equals_the_uninterrupted_one_bit_for_bit(smoke_run, tmp_p
     assert resumed["frames"] == whole["frames"] == 4096
     for key in ("actor", "critic", "optim", "obs_norm", "env", "sim", "carrier", "rng"):
         torch.testing.assert_close(resumed[key], whole[key], rtol=0, atol=0, msg=key)
+
+
+def test_a_run_started_from_a_checkpoint_begins_with_its_actor_and_statistics(smoke_run,
+                                                                              tmp_path):
+    """--init: the run's actor is the checkpoint's with its std reset to the run's
+    model.init_log_std (a one-batch run whose steps are below float32's resolution, lr
+    1e-30, ends with exactly that), on the checkpoint's observation statistics; the critic
+    is fresh, the frames count from zero, and the evaluator's policy column names the
+    start."""
+    _, final = smoke_run
+    start = torch.load(final, weights_only=True)
+    main(["--preset", "smoke", "--init", str(final), f"logger.log_dir={tmp_path}",
+          "optim.lr=1e-30", "model.init_log_std=-2", "collector.total_frames=1024"])
+    run = torch.load(tmp_path / "smoke" / "checkpoint_final.pt", weights_only=True)
+    assert run["frames"] == 1024 and run["started_from"] == str(final)
+    assert any(key.endswith("log_std") for key in start["actor"])
+    for key, value in start["actor"].items():
+        expected = torch.full_like(value, -2.0) if key.endswith("log_std") else value
+        torch.testing.assert_close(run["actor"][key], expected, rtol=0, atol=0, msg=key)
+    assert not torch.equal(run["critic"]["module.0.weight"], start["critic"]["module.0.weight"])
+    # The statistics went on from the checkpoint's: more counted than one batch gives.
+    counts = [v for k, v in run["obs_norm"]["_extra_state"].items() if k.startswith("count")]
+    assert counts and all(int(c) > 1024 for c in counts)
+    row = evaluate(str(tmp_path / "smoke" / "checkpoint_final.pt"), episodes=2, levels=[0.0])[0]
+    assert row["policy"].endswith(f"from {final}")
+
+
+@pytest.mark.parametrize("state_dependent", [True, False])
+def test_reset_exploration_sets_the_std_everywhere_and_keeps_the_mean(state_dependent):
+    spec = Bounded(-1.0, 1.0, shape=(3,))
+    cfg = ModelConfig(hidden=[8], init_log_std=-2.5, state_dependent_std=state_dependent)
+    actor, _ = make_ppo_models(4, spec, cfg)
+    with torch.no_grad():
+        for p in actor.parameters():
+            p.add_(torch.randn_like(p))  # a trained actor: its std varies with the state
+    td = TensorDict({NORMALISED: torch.randn(64, 4)}, [64])
+    before = actor.module[0](td.clone())
+    assert before["scale"].std() > 0.01 or not state_dependent
+    reset_exploration(actor, cfg)
+    after = actor.module[0](td.clone())
+    torch.testing.assert_close(after["loc"], before["loc"], rtol=0, atol=0)
+    torch.testing.assert_close(after["scale"], torch.full_like(after["scale"], math.exp(-2.5)))
+
+
+def test_a_start_checkpoint_with_another_agent_or_a_resume_beside_it_is_refused(smoke_run,
+                                                                                tmp_path):
+    _, final = smoke_run
+    other = load_config("smoke", ["agent.goal_features=true", f"logger.log_dir={tmp_path}"])
+    with pytest.raises(ValueError, match=r"trained with another agent config: "
+                                         r"agent\.goal_features=False in the checkpoint"):
+        train(other, init=str(final))
+    cfg = load_config("smoke", [f"logger.log_dir={tmp_path}"])
+    with pytest.raises(ValueError, match="pass one of them"):
+        train(cfg, resume=str(final), init=str(final))
+    with pytest.raises(ValueError, match="is not a torchpark checkpoint"):
+        train(cfg, init=__file__)
 
 
 def test_unknown_preset_or_field_is_an_error():

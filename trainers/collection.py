@@ -123,6 +123,13 @@ class RankCollection:
         # Every replica starts from these counts: the next merge adds only what they see.
         self._counted = norm_counts(self._norm_state(state))
 
+    def load_normaliser(self, state: dict) -> None:
+        """Load observation statistics (a checkpoint's ``obs_norm``) into every replica."""
+        self.env.transform[-1].load_state_dict(state)
+        if not self.direct:
+            self.call("env.transform[-1].load_state_dict", state)
+        self._counted = norm_counts(state)
+
     def sync_normalisers(self) -> None:
         """Merge the observation normalisers of every replica of the run (all workers of all
         ranks, ``trainers.distributed.merge_normalisers``) and load the merged statistics in

@@ -24,7 +24,7 @@ from torchrl.record.loggers import TensorboardLogger
 from tqdm import tqdm
 
 from torchpark import OccupancyCurriculum
-from trainers.checkpoint import RESUME_KEYS, load_checkpoint
+from trainers.checkpoint import EVALUATION_KEYS, RESUME_KEYS, load_checkpoint
 from trainers.collection import RankCollection
 from trainers.config import TrainConfig, load_config, upgrade_saved
 from trainers.distributed import (
@@ -40,10 +40,12 @@ from trainers.distributed import (
     rank_seed,
     standardise_advantage,
 )
-from trainers.utils import build_models
+from trainers.utils import build_models, reset_exploration
 
-# Config sections a checkpoint must share with the run that resumes it.
+# Config sections a checkpoint must share with the run that resumes it / starts from it.
 _MODEL_SECTIONS = ("env", "agent", "train", "model", "curriculum")
+_INIT_SECTIONS = ("agent", "model")
+_INIT_FREE = ("model.init_log_std",)  # a started actor explores from the run's own std
 
 
 def episode_stats(ended: TensorDict | None, repeat: int = 1) -> dict[str, float]:
@@ -163,28 +165,46 @@ def rank_states(checkpoint: dict, cfg: TrainConfig) -> list[dict] | None:
     return states
 
 
-def prepare(cfg: TrainConfig, resume: str | None, overwrite: bool) -> None:
-    """What is checked before any rank starts: the run directory (:func:`check_log_dir`) and
-    that the checkpoint to resume was trained with the same task, agent and model."""
+def config_differences(saved: dict, cfg: TrainConfig, section: str, free: tuple = ()) -> str:
+    """The fields of ``cfg``'s ``section`` that differ from a checkpoint's saved config, as
+    ``"section.field=<saved> in the checkpoint, <now> now"`` (empty when none do), leaving
+    out the dot names in ``free``."""
+    now = dataclasses.asdict(getattr(cfg, section))
+    old = upgrade_saved(saved).get(section, {})
+    return ", ".join(f"{section}.{k}={old.get(k)!r} in the checkpoint, {now.get(k)!r} now"
+                     for k in sorted(set(old) | set(now))
+                     if old.get(k) != now.get(k) and f"{section}.{k}" not in free)
+
+
+def prepare(cfg: TrainConfig, resume: str | None, overwrite: bool, init: str | None = None
+            ) -> None:
+    """What is checked before any rank starts: the run directory (:func:`check_log_dir`),
+    that the checkpoint to resume was trained with the same task, agent and model, and that
+    the checkpoint to start from (``init``) has the run's agent and model (its std may
+    differ: the run's ``model.init_log_std`` replaces it)."""
     check_log_dir(Path(cfg.logger.log_dir) / cfg.logger.exp_name, resume, overwrite)
-    if resume is None:
-        return
-    saved = upgrade_saved(load_checkpoint(resume, "cpu", RESUME_KEYS)["config"])
-    for section in _MODEL_SECTIONS:
-        now = dataclasses.asdict(getattr(cfg, section))
-        old = saved.get(section, {})
-        differ = {f"{section}.{k}": (old.get(k), now.get(k))
-                  for k in sorted(set(old) | set(now)) if old.get(k) != now.get(k)}
-        if differ:
-            listed = ", ".join(f"{k}={a!r} in the checkpoint, {b!r} now"
-                               for k, (a, b) in differ.items())
-            raise ValueError(f"checkpoint {resume!r} was trained with another {section} "
-                             f"config: {listed}")
+    if resume is not None and init is not None:
+        raise ValueError("--resume continues a run and --init starts one: pass one of them")
+    for path, keys, sections, free in ((resume, RESUME_KEYS, _MODEL_SECTIONS, ()),
+                                       (init, EVALUATION_KEYS, _INIT_SECTIONS, _INIT_FREE)):
+        if path is None:
+            continue
+        saved = load_checkpoint(path, "cpu", keys)["config"]
+        for section in sections:
+            listed = config_differences(saved, cfg, section, free)
+            if listed:
+                raise ValueError(f"checkpoint {path!r} was trained with another {section} "
+                                 f"config: {listed}")
 
 
-def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) -> Path:
+def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False,
+          init: str | None = None) -> Path:
     """Run PPO; returns the path of the final checkpoint. A run directory that holds another
-    run is refused unless ``overwrite`` (see :func:`check_log_dir`).
+    run is refused unless ``overwrite`` (see :func:`check_log_dir`). ``init``: a checkpoint
+    (e.g. a distilled student, ``trainers.distill``) whose actor's mean and observation
+    statistics the run starts from, its std reset to ``model.init_log_std``
+    (:func:`~trainers.utils.reset_exploration`), with a fresh critic, optimiser and
+    curriculum.
 
     ``dist.world_size`` > 1: data-parallel (``trainers.distributed``). Under a launcher
     (torchrun) this process is one rank and rank 0 checks the run first; without one, the
@@ -196,28 +216,31 @@ def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False) 
         error = None
         if world.main:
             try:
-                prepare(cfg, resume, overwrite)
+                prepare(cfg, resume, overwrite, init)
             except ValueError as err:
                 error = str(err)
         error = all_gather(error, world)[0]
         if error is not None:
             leave(world)
             raise ValueError(error)
-        return _train(cfg, resume, world)
-    prepare(cfg, resume, overwrite)
+        return _train(cfg, resume, world, init)
+    prepare(cfg, resume, overwrite, init)
     if size > 1:
-        return launch(_launched_rank, (cfg, resume), size)
-    return _train(cfg, resume, World(device=torch.device(cfg.env.device)))
+        return launch(_launched_rank, (cfg, resume, init), size)
+    return _train(cfg, resume, World(device=torch.device(cfg.env.device)), init)
 
 
-def _launched_rank(cfg: TrainConfig, resume: str | None) -> Path:
+def _launched_rank(cfg: TrainConfig, resume: str | None, init: str | None) -> Path:
     """A rank started by :func:`launch` (the run was checked before)."""
-    return _train(cfg, resume, join(cfg.dist.world_size, cfg.env.device))
+    return _train(cfg, resume, join(cfg.dist.world_size, cfg.env.device), init)
 
 
-def _train(cfg: TrainConfig, resume: str | None, world: World) -> Path:
+def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None) -> Path:
     run_dir = Path(cfg.logger.log_dir) / cfg.logger.exp_name
     checkpoint = load_checkpoint(resume, world.device, RESUME_KEYS) if resume else None
+    start = load_checkpoint(init, world.device) if init else None
+    # What the actor started from, kept through resumes (the evaluator's "policy" column).
+    started_from = checkpoint.get("started_from") if checkpoint is not None else init
     torch.manual_seed(cfg.seed)  # the same initial networks on every rank
     device = world.device
     frames = checkpoint["frames"] if checkpoint is not None else 0
@@ -238,6 +261,9 @@ def _train(cfg: TrainConfig, resume: str | None, world: World) -> Path:
     advantage = GAE(gamma=cfg.loss.gamma, lmbda=cfg.loss.gae_lambda, value_network=critic,
                     average_gae=False)
     optim = torch.optim.Adam(loss_module.parameters(), lr=cfg.optim.lr)
+    if start is not None:
+        actor.load_state_dict(start["actor"])
+        reset_exploration(actor, cfg.model)
     if checkpoint is not None:
         actor.load_state_dict(checkpoint["actor"])
         critic.load_state_dict(checkpoint["critic"])
@@ -252,6 +278,8 @@ def _train(cfg: TrainConfig, resume: str | None, world: World) -> Path:
     env, collector = collection.env, collection.collector
     exact = rank_states(checkpoint, cfg) if checkpoint is not None else None
     if checkpoint is None:
+        if start is not None:
+            collection.load_normaliser(start["obs_norm"])
         collection.spread_timeouts()
     else:
         collection.load_env_state(checkpoint["env"])
@@ -279,6 +307,10 @@ def _train(cfg: TrainConfig, resume: str | None, world: World) -> Path:
                  "obs_norm": env.transform[-1].state_dict()}
         if states is not None:
             state.update(states[0] if len(states) == 1 else {"ranks": states})
+        if started_from is not None:
+            state["started_from"] = started_from
+            state["trained_by"] = (f"PPO ({cfg.logger.exp_name} run, {frames:,} frames) "
+                                   f"from {started_from}")
         torch.save(state, path)
         return path
 
@@ -340,6 +372,9 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m trainers.ppo", description=__doc__)
     parser.add_argument("--preset", default="fast", help="paper, fast or smoke")
     parser.add_argument("--resume", default=None, help="checkpoint to continue from")
+    parser.add_argument("--init", default=None,
+                        help="checkpoint whose actor and observation statistics a new run "
+                             "starts from (its agent and model config must be the run's)")
     parser.add_argument("overrides", nargs="*", help="config fields as key=value")
     parser.add_argument("--overwrite", action="store_true",
                         help="delete the checkpoints and logs of a run already in the run's "
@@ -347,7 +382,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_intermixed_args(argv)
     try:
         path = train(load_config(args.preset, args.overrides), resume=args.resume,
-                     overwrite=args.overwrite)
+                     overwrite=args.overwrite, init=args.init)
     except ValueError as err:
         parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
     print(f"final checkpoint: {path}")

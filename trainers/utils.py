@@ -97,6 +97,22 @@ def make_ppo_models(obs_dim: int, action_spec: Bounded, cfg: ModelConfig
     return actor, critic
 
 
+def reset_exploration(actor: ProbabilisticActor, cfg: ModelConfig) -> None:
+    """Set the std of a trained actor (from :func:`make_ppo_models`) back to
+    ``exp(cfg.init_log_std)`` in every state, its mean untouched: the scale outputs' weights
+    and biases zeroed (the state-dependent head maps 0 to that std), or the learned log-std
+    filled."""
+    policy = actor.module[0].module
+    with torch.no_grad():
+        if cfg.state_dependent_std:
+            last = [m for m in policy[0].modules() if isinstance(m, nn.Linear)][-1]
+            half = last.out_features // 2  # (loc, scale) halves, NormalParamExtractor's order
+            last.weight[half:].zero_()
+            last.bias[half:].zero_()
+        else:
+            policy[1].log_std.fill_(cfg.init_log_std)
+
+
 def make_base_env(cfg: TrainConfig, training: bool, num_envs: int | None = None,
                   seed: int | None = None) -> ParkingEnv:
     """The run's ParkingEnv: its task and aids from :func:`trainers.config.env_configs`."""
