@@ -114,6 +114,11 @@ class LossConfig:
     mini_batch_size: int = 64
     ppo_epochs: int = 10
     reward_scale: float = 1.0  # rewards are multiplied by this before GAE and the critic
+    # A run started from a checkpoint (--init) may be held to that actor near the goal:
+    # anchor_coef x the squared distance of the actor's deterministic action from the
+    # initial actor's, in states within anchor_reach m of the goal (trainers.anchor).
+    anchor_coef: float = 0.0
+    anchor_reach: float = 8.0
 
 
 @dataclass
@@ -311,8 +316,11 @@ def _check(cfg: TrainConfig) -> None:
         _require(finite(value) and value > 0, f"loss.{name}", "a finite number > 0", value)
     _require(finite(cfg.optim.max_grad_norm) and cfg.optim.max_grad_norm > 0,
              "optim.max_grad_norm", "a finite number > 0", cfg.optim.max_grad_norm)
-    _require(finite(loss.entropy_coef) and loss.entropy_coef >= 0, "loss.entropy_coef",
-             "a finite number >= 0", loss.entropy_coef)
+    for name in ("entropy_coef", "anchor_coef"):
+        value = getattr(loss, name)
+        _require(finite(value) and value >= 0, f"loss.{name}", "a finite number >= 0", value)
+    _require(finite(loss.anchor_reach) and loss.anchor_reach > 0, "loss.anchor_reach",
+             "a finite number > 0", loss.anchor_reach)
     _require(loss.ppo_epochs >= 1, "loss.ppo_epochs", "an int >= 1", loss.ppo_epochs)
     _require(finite(cfg.optim.lr) and cfg.optim.lr > 0, "optim.lr", "a finite number > 0",
              cfg.optim.lr)

@@ -24,6 +24,7 @@ from torchrl.record.loggers import TensorboardLogger
 from tqdm import tqdm
 
 from torchpark import OccupancyCurriculum
+from trainers.anchor import AnchoredPPOLoss
 from trainers.checkpoint import EVALUATION_KEYS, RESUME_KEYS, load_checkpoint
 from trainers.collection import RankCollection
 from trainers.config import TrainConfig, load_config, upgrade_saved
@@ -103,8 +104,9 @@ def ppo_step(loss_fn: torch.nn.Module, optim: torch.optim.Optimizer, sample: Ten
     sample.set("advantage", standardise_advantage(sample["advantage"]))
     losses = loss_fn(sample)
     total = losses["loss_objective"] + losses["loss_critic"]
-    if "loss_entropy" in losses.keys():
-        total = total + losses["loss_entropy"]
+    for extra in ("loss_entropy", "loss_anchor"):
+        if extra in losses.keys():
+            total = total + losses[extra]
     total.backward()
     params = [p for group in optim.param_groups for p in group["params"]]
     torch.nn.utils.clip_grad_norm_(params, max_grad_norm)
@@ -185,6 +187,13 @@ def prepare(cfg: TrainConfig, resume: str | None, overwrite: bool, init: str | N
     check_log_dir(Path(cfg.logger.log_dir) / cfg.logger.exp_name, resume, overwrite)
     if resume is not None and init is not None:
         raise ValueError("--resume continues a run and --init starts one: pass one of them")
+    if cfg.loss.anchor_coef > 0 and resume is None and init is None:
+        raise ValueError(f"loss.anchor_coef={cfg.loss.anchor_coef} holds the actor to the one "
+                         f"the run starts from: pass --init CHECKPOINT")
+    if cfg.loss.anchor_coef > 0 and resume is not None \
+            and "anchor" not in load_checkpoint(resume, "cpu", RESUME_KEYS):
+        raise ValueError(f"checkpoint {resume!r} was trained without loss.anchor_coef: it "
+                         f"has no anchor to resume with")
     for path, keys, sections, free in ((resume, RESUME_KEYS, _MODEL_SECTIONS, ()),
                                        (init, EVALUATION_KEYS, _INIT_SECTIONS, _INIT_FREE)):
         if path is None:
@@ -253,11 +262,20 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None)
     actor, critic = build_models(cfg)
     actor, critic = actor.to(device), critic.to(device)
     # The advantages are standardised over each minibatch of all ranks by ppo_step.
-    loss_module = ClipPPOLoss(
-        actor, critic, clip_epsilon=cfg.loss.clip_epsilon,
-        entropy_bonus=cfg.loss.entropy_coef > 0, entropy_coeff=cfg.loss.entropy_coef,
-        critic_coeff=cfg.loss.critic_coef, loss_critic_type="l2", normalize_advantage=False,
+    loss_options = dict(
+        clip_epsilon=cfg.loss.clip_epsilon, entropy_bonus=cfg.loss.entropy_coef > 0,
+        entropy_coeff=cfg.loss.entropy_coef, critic_coeff=cfg.loss.critic_coef,
+        loss_critic_type="l2", normalize_advantage=False,
     )
+    anchor = None
+    if cfg.loss.anchor_coef > 0:  # the actor the run started from (prepare checked there is one)
+        anchor = build_models(cfg)[0].to(device)
+        anchor.load_state_dict(checkpoint["anchor"] if checkpoint is not None
+                               else start["actor"])
+        loss_module = AnchoredPPOLoss(actor, critic, anchor, cfg.loss.anchor_coef,
+                                      cfg.loss.anchor_reach, **loss_options)
+    else:
+        loss_module = ClipPPOLoss(actor, critic, **loss_options)
     advantage = GAE(gamma=cfg.loss.gamma, lmbda=cfg.loss.gae_lambda, value_network=critic,
                     average_gae=False)
     optim = torch.optim.Adam(loss_module.parameters(), lr=cfg.optim.lr)
@@ -307,6 +325,8 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None)
                  "obs_norm": env.transform[-1].state_dict()}
         if states is not None:
             state.update(states[0] if len(states) == 1 else {"ranks": states})
+        if anchor is not None:
+            state["anchor"] = anchor.state_dict()
         if started_from is not None:
             state["started_from"] = started_from
             state["trained_by"] = (f"PPO ({cfg.logger.exp_name} run, {frames:,} frames) "
@@ -346,6 +366,7 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None)
                 "loss/objective": losses["loss_objective"].item(),
                 "loss/critic": losses["loss_critic"].item(),
                 "loss/kl_approx": losses["kl_approx"].item(),
+                **({"loss/anchor": losses["loss_anchor"].item()} if anchor is not None else {}),
                 "loss/clip_fraction": losses["clip_fraction"].item(),
                 "time/collect_fps": batch_frames / collect_time,
                 "time/train_fps": batch_frames / train_time,
