@@ -12,6 +12,8 @@ import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from tensordict import TensorDict
 from torchrl.data import Bounded
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.objectives import ClipPPOLoss
 
 from torchpark import (
     DockingConfig,
@@ -21,7 +23,7 @@ from torchpark.aids.features import GOAL_FEATURES
 from trainers.config import ModelConfig, env_configs, load_config
 from trainers.evaluate import COLUMNS, evaluate
 from trainers.evaluate import main as evaluate_main
-from trainers.ppo import main, train
+from trainers.ppo import main, recompute_log_prob_, train
 from trainers.utils import NORMALISED, make_env, make_ppo_models, reset_exploration
 
 TAGS = {
@@ -84,8 +86,8 @@ def test_a_run_started_from_a_checkpoint_begins_with_its_actor_and_statistics(sm
                                                                               tmp_path):
     """--init: the run's actor is the checkpoint's with its std reset to the run's
     model.init_log_std (a one-batch run whose steps are below float32's resolution, lr
-    1e-30, ends with exactly that), on the checkpoint's observation statistics; the critic
-    is fresh, the frames count from zero, and the evaluator's policy column names the
+    1e-30, ends with exactly that), on the checkpoint's observation statistics, frozen; the
+    critic is fresh, the frames count from zero, and the evaluator's policy column names the
     start."""
     _, final = smoke_run
     start = torch.load(final, weights_only=True)
@@ -98,9 +100,11 @@ def test_a_run_started_from_a_checkpoint_begins_with_its_actor_and_statistics(sm
         expected = torch.full_like(value, -2.0) if key.endswith("log_std") else value
         torch.testing.assert_close(run["actor"][key], expected, rtol=0, atol=0, msg=key)
     assert not torch.equal(run["critic"]["module.0.weight"], start["critic"]["module.0.weight"])
-    # The statistics went on from the checkpoint's: more counted than one batch gives.
-    counts = [v for k, v in run["obs_norm"]["_extra_state"].items() if k.startswith("count")]
-    assert counts and all(int(c) > 1024 for c in counts)
+    # The statistics are the checkpoint's, frozen (the smoke run's moved in every batch).
+    torch.testing.assert_close(run["obs_norm"], start["obs_norm"], rtol=0, atol=0)
+    half = torch.load(final.parent / "checkpoint_2048.pt", weights_only=True)["obs_norm"]
+    assert any(not torch.equal(v, half["_extra_state"][k])
+               for k, v in start["obs_norm"]["_extra_state"].items() if k.startswith("var"))
     row = evaluate(str(tmp_path / "smoke" / "checkpoint_final.pt"), episodes=2, levels=[0.0])[0]
     assert row["policy"].endswith(f"from {final}")
 
@@ -120,6 +124,30 @@ def test_reset_exploration_sets_the_std_everywhere_and_keeps_the_mean(state_depe
     after = actor.module[0](td.clone())
     torch.testing.assert_close(after["loc"], before["loc"], rtol=0, atol=0)
     torch.testing.assert_close(after["scale"], torch.full_like(after["scale"], math.exp(-2.5)))
+
+
+def test_the_recomputed_log_prob_makes_the_first_ratio_one_on_saturated_draws():
+    """An actor whose pre-tanh mean is 12 (a distilled gear's, say) with std 0.135: the
+    log-probability sampled with the action and the one the loss recomputes from the float32
+    action differ by hundreds of nats; after recompute_log_prob_ the loss's ratio is exactly
+    one before any step."""
+    spec = Bounded(-1.0, 1.0, shape=(2,))
+    cfg = ModelConfig(hidden=[8], init_log_std=-2.0, state_dependent_std=True)
+    actor, critic = make_ppo_models(4, spec, cfg)
+    with torch.no_grad():
+        actor.module[0].module[0][-1].bias[:2] = 12.0
+    td = TensorDict({NORMALISED: torch.randn(256, 4)}, [256])
+    with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
+        td = actor(td)
+    key = "action_log_prob"
+    stored = td[key].clone()
+    td["advantage"] = torch.randn(256, 1)
+    td["value_target"] = torch.randn(256, 1)
+    loss = ClipPPOLoss(actor, critic, normalize_advantage=False)
+    assert (loss(td.clone())["kl_approx"].abs() > 1).item()
+    recompute_log_prob_(actor, td, loss.tensor_keys.sample_log_prob)
+    assert (td[key] - stored).abs().max() > 100
+    assert loss(td.clone())["kl_approx"].item() == 0.0
 
 
 def test_a_start_checkpoint_with_another_agent_or_a_resume_beside_it_is_refused(smoke_run,

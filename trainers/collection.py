@@ -130,6 +130,13 @@ class RankCollection:
             self.call("env.transform[-1].load_state_dict", state)
         self._counted = norm_counts(state)
 
+    def freeze_normaliser(self) -> None:
+        """Stop every replica's observation statistics from moving (a network started from a
+        checkpoint reads its inputs on the scale it was trained on)."""
+        self.env.transform[-1].freeze()
+        if not self.direct:
+            self.call("env.transform[-1].freeze")
+
     def sync_normalisers(self) -> None:
         """Merge the observation normalisers of every replica of the run (all workers of all
         ranks, ``trainers.distributed.merge_normalisers``) and load the merged statistics in

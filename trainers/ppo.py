@@ -93,6 +93,17 @@ def check_log_dir(path: Path, resume: str | None, overwrite: bool) -> None:
         f.unlink()
 
 
+def recompute_log_prob_(actor: torch.nn.Module, batch: TensorDict, key: str) -> None:
+    """Replace the log-probability stored with each sampled action (``key``) by the one the
+    loss will compute from the stored action, with the same (sampling) actor. A TanhNormal
+    sample's log-probability comes from its pre-tanh draw, the loss's from the float32
+    action, whose atanh is clamped near +-1: where the draw is saturated (pre-tanh beyond
+    ~7) the two differ by hundreds of nats, and PPO's ratio with them is noise. Recomputed,
+    the ratio is 1 before the first step, as PPO's trust region assumes."""
+    with torch.no_grad():
+        batch.set(key, actor.get_dist(batch).log_prob(batch["action"]).reshape(batch[key].shape))
+
+
 def ppo_step(loss_fn: torch.nn.Module, optim: torch.optim.Optimizer, sample: TensorDict,
              max_grad_norm: float) -> TensorDict:
     """One gradient step of PPO on a minibatch (``sample``: this rank's share of it); returns
@@ -212,8 +223,8 @@ def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False,
     run is refused unless ``overwrite`` (see :func:`check_log_dir`). ``init``: a checkpoint
     (e.g. a distilled student, ``trainers.distill``) whose actor's mean and observation
     statistics the run starts from, its std reset to ``model.init_log_std``
-    (:func:`~trainers.utils.reset_exploration`), with a fresh critic, optimiser and
-    curriculum.
+    (:func:`~trainers.utils.reset_exploration`) and the statistics frozen, with a fresh
+    critic, optimiser and curriculum.
 
     ``dist.world_size`` > 1: data-parallel (``trainers.distributed``). Under a launcher
     (torchrun) this process is one rank and rank 0 checks the run first; without one, the
@@ -306,6 +317,10 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None)
         elif world.main:
             print(f"{resume}: no env state for {world.size} rank(s) with "
                   f"{cfg.dist.collectors} collection; resuming with fresh episodes")
+    if started_from is not None:
+        # The started actor's inputs stay on its own scale: a few batches of the new run's
+        # statistics shift them enough to undo a millimetre-precise student.
+        collection.freeze_normaliser()
     logger = TensorboardLogger(exp_name=cfg.logger.exp_name, log_dir=cfg.logger.log_dir) \
         if world.main else None
     curriculum = next(t for t in env.transform if isinstance(t, OccupancyCurriculum))
@@ -348,6 +363,7 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None)
         train_start = time.perf_counter()
         with torch.no_grad():
             advantage(batch)
+        recompute_log_prob_(actor, batch, loss_module.tensor_keys.sample_log_prob)
         flat = batch.reshape(-1)
         for _ in range(cfg.loss.ppo_epochs):
             for index in torch.randperm(flat.shape[0], device=device).split(mini_batch):
