@@ -106,6 +106,6 @@ def test_an_anchor_without_a_start_is_refused(start, tmp_path):
         train(cfg)
     with pytest.raises(ValueError, match=r"trained without loss\.anchor_coef"):
         train(cfg, resume=str(start))
-    for bad in ("loss.anchor_coef=-1", "loss.anchor_coef=nan", "loss.anchor_reach=0"):
+    for bad in ("loss.anchor_coef=nan", "loss.anchor_reach=0"):
         with pytest.raises(ValueError, match=bad.split("=")[0].replace(".", r"\.")):
             load_config("smoke", [bad])

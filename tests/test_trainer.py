@@ -150,6 +150,35 @@ def test_the_recomputed_log_prob_makes_the_first_ratio_one_on_saturated_draws():
     assert loss(td.clone())["kl_approx"].item() == 0.0
 
 
+def test_the_importance_ratio_cap_keeps_the_gradient_of_saturated_draws_finite():
+    """Saturated draws (pre-tanh mean 12, std 0.135) after the mean moved by 1: their new
+    density is exp(hundreds of nats) times the sampling one's, the uncapped surrogate's
+    gradient is not finite; with loss.max_importance_ratio it is."""
+    spec = Bounded(-1.0, 1.0, shape=(2,))
+    cfg = ModelConfig(hidden=[8], init_log_std=-2.0, state_dependent_std=True)
+    actor, critic = make_ppo_models(4, spec, cfg)
+    with torch.no_grad():
+        actor.module[0].module[0][-1].bias[:2] = 12.0
+    td = TensorDict({NORMALISED: torch.randn(256, 4)}, [256])
+    with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
+        td = actor(td)
+    td["advantage"] = torch.randn(256, 1)
+    td["value_target"] = torch.randn(256, 1)
+    recompute_log_prob_(actor, td, "action_log_prob")
+    with torch.no_grad():
+        actor.module[0].module[0][-1].bias[:2] = 11.0
+
+    def gradient_is_finite(cap: float | None) -> bool:
+        loss = ClipPPOLoss(actor, critic, normalize_advantage=False, max_importance_ratio=cap)
+        actor.zero_grad()
+        loss(td.clone())["loss_objective"].backward()
+        return all(torch.isfinite(p.grad).all() for p in actor.parameters()
+                   if p.grad is not None)
+
+    assert not gradient_is_finite(None)
+    assert gradient_is_finite(10.0)
+
+
 def test_a_start_checkpoint_with_another_agent_or_a_resume_beside_it_is_refused(smoke_run,
                                                                                 tmp_path):
     _, final = smoke_run
@@ -325,6 +354,9 @@ def test_action_repeat_must_divide_the_batch():
     ("agent.observe_brake=true", "agent.observe_brake"),
     ("agent.steer_clear=5", "agent.steer_clear"),
     ("agent.gear_head=true", "agent.gear_head"),
+    ("loss.max_importance_ratio=1", "loss.max_importance_ratio"),
+    ("loss.max_importance_ratio=inf", "loss.max_importance_ratio"),
+    ("loss.anchor_coef=-0.5", "loss.anchor_coef"),
     *([] if torch.cuda.is_available() else [("env.device=cuda", "env.device")]),
 ])
 def test_a_bad_training_field_is_one_line_naming_it(override, name, capsys):

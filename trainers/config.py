@@ -119,6 +119,10 @@ class LossConfig:
     # initial actor's, in states within anchor_reach m of the goal (trainers.anchor).
     anchor_coef: float = 0.0
     anchor_reach: float = 8.0
+    # Caps the ratio of the new policy's probability to the sampling one's in the surrogate
+    # (torchrl's ClipPPOLoss max_importance_ratio; None: uncapped). A saturated TanhNormal
+    # draw's density moves by hundreds of nats with its mean, and exp overflows without it.
+    max_importance_ratio: float | None = None
 
 
 @dataclass
@@ -321,6 +325,9 @@ def _check(cfg: TrainConfig) -> None:
         _require(finite(value) and value >= 0, f"loss.{name}", "a finite number >= 0", value)
     _require(finite(loss.anchor_reach) and loss.anchor_reach > 0, "loss.anchor_reach",
              "a finite number > 0", loss.anchor_reach)
+    ratio = loss.max_importance_ratio
+    _require(ratio is None or (finite(ratio) and ratio > 1), "loss.max_importance_ratio",
+             "null or a finite number > 1", ratio)
     _require(loss.ppo_epochs >= 1, "loss.ppo_epochs", "an int >= 1", loss.ppo_epochs)
     _require(finite(cfg.optim.lr) and cfg.optim.lr > 0, "optim.lr", "a finite number > 0",
              cfg.optim.lr)

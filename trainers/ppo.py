@@ -277,6 +277,7 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None)
         clip_epsilon=cfg.loss.clip_epsilon, entropy_bonus=cfg.loss.entropy_coef > 0,
         entropy_coeff=cfg.loss.entropy_coef, critic_coeff=cfg.loss.critic_coef,
         loss_critic_type="l2", normalize_advantage=False,
+        max_importance_ratio=cfg.loss.max_importance_ratio,
     )
     anchor = None
     if cfg.loss.anchor_coef > 0:  # the actor the run started from (prepare checked there is one)
