@@ -126,23 +126,30 @@ def test_reset_exploration_sets_the_std_everywhere_and_keeps_the_mean(state_depe
     torch.testing.assert_close(after["scale"], torch.full_like(after["scale"], math.exp(-2.5)))
 
 
-def test_the_recomputed_log_prob_makes_the_first_ratio_one_on_saturated_draws():
-    """An actor whose pre-tanh mean is 12 (a distilled gear's, say) with std 0.135: the
-    log-probability sampled with the action and the one the loss recomputes from the float32
-    action differ by hundreds of nats; after recompute_log_prob_ the loss's ratio is exactly
-    one before any step."""
+def saturated_draws(mean: float = 12.0):
+    """An actor whose pre-tanh mean is ``mean`` (a distilled gear's, say) in both action
+    dimensions, std e^-2 = 0.135, and 256 of its draws with advantages and value targets:
+    (actor, critic, batch)."""
     spec = Bounded(-1.0, 1.0, shape=(2,))
     cfg = ModelConfig(hidden=[8], init_log_std=-2.0, state_dependent_std=True)
     actor, critic = make_ppo_models(4, spec, cfg)
     with torch.no_grad():
-        actor.module[0].module[0][-1].bias[:2] = 12.0
+        actor.module[0].module[0][-1].bias[:2] = mean
     td = TensorDict({NORMALISED: torch.randn(256, 4)}, [256])
     with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
         td = actor(td)
-    key = "action_log_prob"
-    stored = td[key].clone()
     td["advantage"] = torch.randn(256, 1)
     td["value_target"] = torch.randn(256, 1)
+    return actor, critic, td
+
+
+def test_the_recomputed_log_prob_makes_the_first_ratio_one_on_saturated_draws():
+    """The log-probability sampled with a saturated action and the one the loss recomputes
+    from the float32 action differ by hundreds of nats; after recompute_log_prob_ the
+    loss's ratio is exactly one before any step."""
+    actor, critic, td = saturated_draws()
+    key = "action_log_prob"
+    stored = td[key].clone()
     loss = ClipPPOLoss(actor, critic, normalize_advantage=False)
     assert (loss(td.clone())["kl_approx"].abs() > 1).item()
     recompute_log_prob_(actor, td, loss.tensor_keys.sample_log_prob)
@@ -151,19 +158,10 @@ def test_the_recomputed_log_prob_makes_the_first_ratio_one_on_saturated_draws():
 
 
 def test_the_importance_ratio_cap_keeps_the_gradient_of_saturated_draws_finite():
-    """Saturated draws (pre-tanh mean 12, std 0.135) after the mean moved by 1: their new
-    density is exp(hundreds of nats) times the sampling one's, the uncapped surrogate's
-    gradient is not finite; with loss.max_importance_ratio it is."""
-    spec = Bounded(-1.0, 1.0, shape=(2,))
-    cfg = ModelConfig(hidden=[8], init_log_std=-2.0, state_dependent_std=True)
-    actor, critic = make_ppo_models(4, spec, cfg)
-    with torch.no_grad():
-        actor.module[0].module[0][-1].bias[:2] = 12.0
-    td = TensorDict({NORMALISED: torch.randn(256, 4)}, [256])
-    with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
-        td = actor(td)
-    td["advantage"] = torch.randn(256, 1)
-    td["value_target"] = torch.randn(256, 1)
+    """Saturated draws after the mean moved by 1: their new density is exp(hundreds of
+    nats) times the sampling one's, the uncapped surrogate's gradient is not finite; with
+    loss.max_importance_ratio it is."""
+    actor, critic, td = saturated_draws()
     recompute_log_prob_(actor, td, "action_log_prob")
     with torch.no_grad():
         actor.module[0].module[0][-1].bias[:2] = 11.0
