@@ -2,7 +2,8 @@
 the paper's env driven by them follows the hybrid env's path; the final-approach states lie
 in the law's settled region and carry its control; the labels in the student's units are
 what its action map turns into the teacher's control; a DAgger run writes a checkpoint the
-evaluator reads as a policy alone; bad settings are refused by name."""
+evaluator reads as a policy alone, which the ``alone`` preset starts from; bad settings are
+refused by name."""
 
 from __future__ import annotations
 
@@ -26,8 +27,10 @@ from trainers.distill import (
     approach_states,
     imitation_error,
     main,
+    student_config,
 )
 from trainers.evaluate import composition, load
+from trainers.ppo import _INIT_FREE, _INIT_SECTIONS, config_differences
 from trainers.utils import make_base_env, make_eval_env, make_policy, make_ppo_models, policy_input
 
 HYBRID = ["agent.emergency_brake=true", "agent.steer_clear=5", "agent.docking=true",
@@ -250,3 +253,17 @@ def test_release_lets_the_law_go_of_a_student_far_from_its_slot(teacher_path):
         teacher.state = teacher.state._replace(docking_engaged=engaged)
         teacher.label(td["observation"])
         assert torch.equal(teacher.state.docking_engaged, kept | in_funnel(error, law))
+
+
+def test_the_alone_preset_starts_from_the_student_of_a_fast_teacher(tmp_path):
+    """``--preset alone --init STUDENT`` is accepted for a student distilled (defaults) from a
+    ``fast`` teacher: the preset's agent and model are the student's, its std excepted; the
+    ``fast`` preset's are not."""
+    fast = load_config("fast")
+    model = [f"model.hidden={fast.model.hidden}", f"model.init_log_std={fast.model.init_log_std}",
+             f"model.state_dependent_std={fast.model.state_dependent_std}"]
+    teacher = write_checkpoint(tmp_path / "fast.pt", HYBRID + model)
+    student = dataclasses.asdict(student_config(teacher, DistillConfig()))
+    for section in _INIT_SECTIONS:
+        assert config_differences(student, load_config("alone"), section, _INIT_FREE) == ""
+    assert config_differences(student, fast, "agent", _INIT_FREE) != ""

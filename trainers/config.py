@@ -210,6 +210,24 @@ def _fast() -> TrainConfig:
     )
 
 
+def _alone() -> TrainConfig:
+    """The policy alone, fine-tuned in the paper's env: ``fast``'s batches and curriculum with
+    the paper's agent (no brake, no docking law, one action per step of dt) acting through a
+    gear head and a cubic speed map, for a run started (``--init``) from the student that
+    ``trainers.distill`` cloned from the hybrid: std e^-2, lr 3e-5, 4 epochs, held to the
+    student within 8 m of the goal (``loss.anchor_coef``) and PPO's ratio capped at 10 (the
+    student's saturated gear)."""
+    fast = _fast()
+    return replace(
+        fast,
+        agent=AgentConfig(action_exponents=[3.0, 1.0], gear_head=True, goal_features=True),
+        loss=replace(fast.loss, ppo_epochs=4, anchor_coef=1.0, max_importance_ratio=10.0),
+        optim=OptimConfig(lr=3e-5),
+        model=replace(fast.model, init_log_std=-2.0),
+        logger=LoggerConfig(exp_name="alone"),
+    )
+
+
 def _smoke() -> TrainConfig:
     """A few thousand frames, under a minute: for tests and CI."""
     return TrainConfig(
@@ -221,7 +239,7 @@ def _smoke() -> TrainConfig:
     )
 
 
-PRESETS = {"paper": _paper, "fast": _fast, "smoke": _smoke}
+PRESETS = {"paper": _paper, "fast": _fast, "alone": _alone, "smoke": _smoke}
 
 
 def load_config(preset: str, overrides: list[str] | None = None) -> TrainConfig:

@@ -27,7 +27,7 @@ from torchpark import OccupancyCurriculum
 from trainers.anchor import AnchoredPPOLoss
 from trainers.checkpoint import EVALUATION_KEYS, RESUME_KEYS, load_checkpoint
 from trainers.collection import RankCollection
-from trainers.config import TrainConfig, load_config, upgrade_saved
+from trainers.config import PRESETS, TrainConfig, load_config, upgrade_saved
 from trainers.distributed import (
     World,
     all_gather,
@@ -408,7 +408,7 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None)
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m trainers.ppo", description=__doc__)
-    parser.add_argument("--preset", default="fast", help="paper, fast or smoke")
+    parser.add_argument("--preset", default="fast", help=", ".join(PRESETS))
     parser.add_argument("--resume", default=None, help="checkpoint to continue from")
     parser.add_argument("--init", default=None,
                         help="checkpoint whose actor and observation statistics a new run "
