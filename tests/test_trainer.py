@@ -301,13 +301,15 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
 
 def test_training_aids_stay_out_of_the_evaluation_env():
     cfg = load_config("smoke", ["train.success_threshold=0.1", "train.brake_penalty=-1.0",
+                                "train.collision_penalty=-1000.0",
                                 "train.near_goal_starts=0.5", "agent.emergency_brake=true",
                                 "agent.action_repeat=2", "agent.docking=true",
                                 "agent.docking_lateral=0.3", "agent.steer_clear=5"])
     (training, train_aids), (evaluation, eval_aids) = env_configs(cfg, True), env_configs(cfg,
                                                                                           False)
-    assert (training.reward.success_threshold, train_aids.brake.penalty,
-            train_aids.near_goal_starts.probability) == (0.1, -1.0, 0.5)
+    assert (training.reward.success_threshold, training.reward.collision_penalty,
+            train_aids.brake.penalty, train_aids.near_goal_starts.probability) \
+        == (0.1, -1000.0, -1.0, 0.5)
     assert evaluation == ParkingConfig(max_steps=cfg.env.max_steps)  # the paper's task
     assert eval_aids.near_goal_starts is None and eval_aids.brake.penalty == 0.0
     for aids in (train_aids, eval_aids):  # what the agent is stays
@@ -355,6 +357,8 @@ def test_action_repeat_must_divide_the_batch():
     ("loss.max_importance_ratio=1", "loss.max_importance_ratio"),
     ("loss.max_importance_ratio=inf", "loss.max_importance_ratio"),
     ("loss.anchor_coef=-0.5", "loss.anchor_coef"),
+    ("train.collision_penalty=nan", "train.collision_penalty"),
+    ("train.collision_penalty=200", "train.collision_penalty"),
     *([] if torch.cuda.is_available() else [("env.device=cuda", "env.device")]),
 ])
 def test_a_bad_training_field_is_one_line_naming_it(override, name, capsys):

@@ -79,6 +79,10 @@ class TrainAidsConfig:
     near_goal_heading: float = NearGoalStarts.heading
     # BrakeConfig.penalty: added to the reward of a step the brake stops.
     brake_penalty: float = 0.0
+    # The training env's reward on the step that collides (the paper's RewardConfig
+    # collision_penalty, -200, by default): far from the goal the paper's per-step reward
+    # 1 - cbrt(C) is below 0, and a -200 crash costs less than a long failed episode.
+    collision_penalty: float = RewardConfig.collision_penalty
 
 
 @dataclass
@@ -261,13 +265,13 @@ def load_config(preset: str, overrides: list[str] | None = None) -> TrainConfig:
 def env_configs(cfg: TrainConfig, training: bool) -> tuple[ParkingConfig, AidsConfig | None]:
     """The env's task and aids for this run. What the agent is made of (``agent``: held
     actions, the brake, the docking law) is the same in training and evaluation; the training
-    aids (``train``: success threshold, brake penalty, near-goal starts) apply only with
-    ``training``, evaluation keeps the paper's. No aid at all: (config, None), the paper's
-    env."""
+    aids (``train``: success threshold, collision and brake penalties, near-goal starts) apply
+    only with ``training``, evaluation keeps the paper's. No aid at all: (config, None), the
+    paper's env."""
     agent, aids = cfg.agent, cfg.train
-    threshold = aids.success_threshold if training else RewardConfig.success_threshold
-    config = ParkingConfig(max_steps=cfg.env.max_steps,
-                           reward=RewardConfig(success_threshold=threshold))
+    reward = RewardConfig(success_threshold=aids.success_threshold,
+                          collision_penalty=aids.collision_penalty) if training else RewardConfig()
+    config = ParkingConfig(max_steps=cfg.env.max_steps, reward=reward)
     brake = BrakeConfig(steer_clear=agent.steer_clear,
                         penalty=aids.brake_penalty if training else 0.0) \
         if agent.emergency_brake else None
@@ -346,6 +350,8 @@ def _check(cfg: TrainConfig) -> None:
     ratio = loss.max_importance_ratio
     _require(ratio is None or (finite(ratio) and ratio > 1), "loss.max_importance_ratio",
              "null or a finite number > 1", ratio)
+    _require(finite(cfg.train.collision_penalty) and cfg.train.collision_penalty <= 0,
+             "train.collision_penalty", "a finite number <= 0", cfg.train.collision_penalty)
     _require(loss.ppo_epochs >= 1, "loss.ppo_epochs", "an int >= 1", loss.ppo_epochs)
     _require(finite(cfg.optim.lr) and cfg.optim.lr > 0, "optim.lr", "a finite number > 0",
              cfg.optim.lr)
