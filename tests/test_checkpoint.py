@@ -100,3 +100,20 @@ def test_a_checkpoint_of_the_earlier_config_layout_loads_with_its_fields_moved()
     assert upgrade_saved(upgrade_saved(saved)) == upgrade_saved(saved)  # idempotent
     current = dataclasses.asdict(cfg)
     assert upgrade_saved(current) == current  # a checkpoint of today's layout is kept as is
+
+
+def test_a_field_added_after_a_checkpoint_was_written_takes_its_default_on_resume():
+    """The committed checkpoint predates ``train.collision_penalty``: against the preset it
+    was trained with it differs in nothing (the default is what the code did before), and a
+    run that changes the new field is told so by name."""
+    from trainers.config import load_config
+    from trainers.ppo import _MODEL_SECTIONS, config_differences
+
+    saved = load_checkpoint(COMMITTED)["config"]
+    assert "collision_penalty" not in upgrade_saved(saved)["train"]
+    fast = load_config("fast")
+    assert [config_differences(saved, fast, section) for section in _MODEL_SECTIONS] \
+        == [""] * len(_MODEL_SECTIONS)
+    harsher = load_config("fast", ["train.collision_penalty=-1000.0"])
+    assert config_differences(saved, harsher, "train") \
+        == "train.collision_penalty=-200.0 in the checkpoint, -1000.0 now"

@@ -181,9 +181,11 @@ def rank_states(checkpoint: dict, cfg: TrainConfig) -> list[dict] | None:
 def config_differences(saved: dict, cfg: TrainConfig, section: str, free: tuple = ()) -> str:
     """The fields of ``cfg``'s ``section`` that differ from a checkpoint's saved config, as
     ``"section.field=<saved> in the checkpoint, <now> now"`` (empty when none do), leaving
-    out the dot names in ``free``."""
+    out the dot names in ``free``. A field the checkpoint lacks (added to the config after it
+    was written) is its default, which does what the code did before the field existed."""
     now = dataclasses.asdict(getattr(cfg, section))
-    old = upgrade_saved(saved).get(section, {})
+    old = {**dataclasses.asdict(getattr(TrainConfig(), section)),
+           **upgrade_saved(saved).get(section, {})}
     return ", ".join(f"{section}.{k}={old.get(k)!r} in the checkpoint, {now.get(k)!r} now"
                      for k in sorted(set(old) | set(now))
                      if old.get(k) != now.get(k) and f"{section}.{k}" not in free)
