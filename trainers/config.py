@@ -139,11 +139,6 @@ class OptimConfig:
 class ModelConfig:
     hidden: list[int] = field(default_factory=lambda: [64, 64])
     init_log_std: float = 0.0
-    # With agent.gear_head: the gear output's own initial log-std (None: init_log_std). The
-    # gear acts by its sign only; a distilled gear sits at a pre-tanh mean of |3-4|, where
-    # at a small std each drift of that mean, which changes nothing the car does, moves
-    # PPO's ratio (a product over the action's dimensions) far from 1.
-    gear_init_log_std: float | None = None
     # False: one learned log-std per action (SB3, the paper); True: the actor outputs it.
     state_dependent_std: bool = False
 
@@ -364,9 +359,6 @@ def _check(cfg: TrainConfig) -> None:
              "a non-empty list of ints >= 1", cfg.model.hidden)
     _require(finite(cfg.model.init_log_std), "model.init_log_std", "finite",
              cfg.model.init_log_std)
-    gear_std = cfg.model.gear_init_log_std
-    _require(gear_std is None or (finite(gear_std) and cfg.agent.gear_head),
-             "model.gear_init_log_std", "null, or finite with agent.gear_head", gear_std)
     _require(cfg.logger.checkpoint_every >= 1, "logger.checkpoint_every", "an int >= 1",
              cfg.logger.checkpoint_every)
     _require(cfg.logger.exp_name not in ("", ".", "..") and "/" not in cfg.logger.exp_name,

@@ -46,8 +46,7 @@ from trainers.utils import build_models, reset_exploration
 # Config sections a checkpoint must share with the run that resumes it / starts from it.
 _MODEL_SECTIONS = ("env", "agent", "train", "model", "curriculum")
 _INIT_SECTIONS = ("agent", "model")
-# A started actor explores from the run's own std.
-_INIT_FREE = ("model.init_log_std", "model.gear_init_log_std")
+_INIT_FREE = ("model.init_log_std",)  # a started actor explores from the run's own std
 
 
 def episode_stats(ended: TensorDict | None, repeat: int = 1) -> dict[str, float]:

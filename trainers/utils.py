@@ -46,9 +46,9 @@ NORMALISED = "observation_norm"  # the normalised observation the networks read
 class StateIndependentScale(nn.Module):
     """loc -> (loc, exp(log_std)) with one learned log-std per action dimension."""
 
-    def __init__(self, init_log_std: torch.Tensor) -> None:
+    def __init__(self, action_dim: int, init_log_std: float) -> None:
         super().__init__()
-        self.log_std = nn.Parameter(init_log_std.clone())
+        self.log_std = nn.Parameter(torch.full((action_dim,), init_log_std))
 
     def forward(self, loc: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return loc, self.log_std.exp().expand_as(loc)
@@ -77,17 +77,13 @@ def make_ppo_models(obs_dim: int, action_spec: Bounded, cfg: ModelConfig
                                     scale_lb=1e-4)
         out_features = 2 * action_dim
     else:
-        head = StateIndependentScale(initial_log_std(cfg, action_dim))
+        head = StateIndependentScale(action_dim, cfg.init_log_std)
         out_features = action_dim
     policy = nn.Sequential(
         orthogonal_init(MLP(in_features=obs_dim, out_features=out_features,
                             num_cells=list(cfg.hidden), activation_class=nn.Tanh), 0.01),
         head,
     )
-    if cfg.state_dependent_std:
-        last = [m for m in policy[0].modules() if isinstance(m, nn.Linear)][-1]
-        with torch.no_grad():
-            last.bias[action_dim:] = _scale_offsets(head, cfg, action_dim)
     actor = ProbabilisticActor(
         TensorDictModule(policy, in_keys=[NORMALISED], out_keys=["loc", "scale"]),
         in_keys=["loc", "scale"], spec=action_spec, distribution_class=TanhNormal,
@@ -101,30 +97,10 @@ def make_ppo_models(obs_dim: int, action_spec: Bounded, cfg: ModelConfig
     return actor, critic
 
 
-def initial_log_std(cfg: ModelConfig, action_dim: int) -> torch.Tensor:
-    """(action_dim,) the log-std each action dimension starts from: ``init_log_std``, the
-    gear's (dimension 0 of a gear head, :func:`torchpark.aids.actions.gear_select`)
-    ``gear_init_log_std`` where that is set."""
-    log_std = torch.full((action_dim,), cfg.init_log_std)
-    if cfg.gear_init_log_std is not None:
-        log_std[0] = cfg.gear_init_log_std
-    return log_std
-
-
-def _scale_offsets(head: NormalParamExtractor, cfg: ModelConfig, action_dim: int
-                   ) -> torch.Tensor:
-    """(action_dim,) the scale outputs that the state-dependent head maps to
-    :func:`initial_log_std`'s std (0 where it is ``exp(init_log_std)``, the head's bias)."""
-    mapping = head.scale_mapping  # softplus(out + bias) + min_val
-    log_std = initial_log_std(cfg, action_dim)
-    offsets = torch.log(torch.expm1(log_std.exp() - mapping.min_val)) - mapping.bias
-    return torch.where(log_std == cfg.init_log_std, 0.0, offsets)
-
-
 def reset_exploration(actor: ProbabilisticActor, cfg: ModelConfig) -> None:
     """Set the std of a trained actor (from :func:`make_ppo_models`) back to
-    :func:`initial_log_std`'s in every state, its mean untouched: the scale outputs' weights
-    zeroed and their biases set to the head's outputs for that std, or the learned log-std
+    ``exp(cfg.init_log_std)`` in every state, its mean untouched: the scale outputs' weights
+    and biases zeroed (the state-dependent head maps 0 to that std), or the learned log-std
     filled."""
     policy = actor.module[0].module
     with torch.no_grad():
@@ -132,9 +108,9 @@ def reset_exploration(actor: ProbabilisticActor, cfg: ModelConfig) -> None:
             last = [m for m in policy[0].modules() if isinstance(m, nn.Linear)][-1]
             half = last.out_features // 2  # (loc, scale) halves, NormalParamExtractor's order
             last.weight[half:].zero_()
-            last.bias[half:] = _scale_offsets(policy[1], cfg, half)
+            last.bias[half:].zero_()
         else:
-            policy[1].log_std.copy_(initial_log_std(cfg, policy[1].log_std.shape[0]))
+            policy[1].log_std.fill_(cfg.init_log_std)
 
 
 def make_base_env(cfg: TrainConfig, training: bool, num_envs: int | None = None,
