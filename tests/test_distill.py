@@ -223,6 +223,22 @@ def test_without_the_gear_head_the_student_acts_in_two_dimensions(teacher_path, 
     assert make_eval_env(cfg, checkpoint["obs_norm"], 0.0, 2, seed=0).action_spec.shape == (2, 2)
 
 
+def test_a_student_with_the_clearance_features_reads_them_everywhere(teacher_path, tmp_path):
+    """The rays' clearance joins the student's input in its rollouts, its final-approach
+    states and the evaluator's env alike."""
+    out = tmp_path / "clearance"
+    main([teacher_path, "--out", str(out), "--iterations", "1", "--envs", "4", "--steps",
+          "5", "--epochs", "1", "--yardstick", "2", "--approach", "8",
+          "--clearance-features"])
+    cfg, checkpoint = load(str(out / "checkpoint_final.pt"))
+    assert cfg.agent.clearance_features and cfg.agent.goal_features
+    assert checkpoint["trained_by"].startswith("distilled (gear head, clearance features) from")
+    loc = checkpoint["obs_norm"]["_extra_state"]["loc.-|-.observation_policy"]
+    assert loc.shape[-1] == 23 + 7 + 16
+    env = make_eval_env(cfg, checkpoint["obs_norm"], 0.9, 2, seed=0)
+    env.rollout(3, make_policy(cfg, checkpoint["actor"]))
+
+
 def test_a_gear_head_is_scored_on_its_gear_and_that_gears_pair_only():
     label = torch.tensor([[0.6, -0.2], [-0.4, 0.5], [0.0, 0.1]])
     exact = gear_inverse(label)

@@ -7,7 +7,7 @@ functions; ``torchpark.aids`` the agent-side aids (``ParkingEnv(..., aids=AidsCo
 
 from torchpark.aids.actions import GearActionMap, PowerActionMap
 from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts
-from torchpark.aids.features import GoalFrameFeatures
+from torchpark.aids.features import ClearanceFeatures, GoalFrameFeatures
 from torchpark.aids.success_curriculum import SuccessCurriculum
 from torchpark.config import LidarConfig, LotConfig, ParkingConfig, RewardConfig, VehicleConfig
 from torchpark.curriculum import OccupancyCurriculum
@@ -20,6 +20,7 @@ __all__ = [
     "ENV_ID",
     "AidsConfig",
     "BrakeConfig",
+    "ClearanceFeatures",
     "DockingConfig",
     "GearActionMap",
     "GoalFrameFeatures",

@@ -47,6 +47,9 @@ class AgentConfig:
     gear_head: bool = False
     # Append the goal seen from the car (torchpark.GoalFrameFeatures) to the policy's input.
     goal_features: bool = False
+    # Append the gap left along each LIDAR ray past the car's own box, on a log-like scale
+    # (torchpark.ClearanceFeatures) to the policy's input.
+    clearance_features: bool = False
     # The emergency brake (torchpark.BrakeConfig): a step that would collide is not taken.
     emergency_brake: bool = False
     # With the brake, the steering angles it tries (the clear one nearest the commanded)

@@ -57,7 +57,7 @@ from pathlib import Path
 
 import torch
 from tensordict import TensorDict
-from torchrl.envs import Compose, TransformedEnv
+from torchrl.envs import Compose, Transform, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchpark.aids.actions import (
@@ -72,7 +72,6 @@ from torchpark.aids.actions import (
 from torchpark.aids.brake import steer_angles
 from torchpark.aids.config import BrakeConfig, DockingConfig
 from torchpark.aids.docking import error_from_goal
-from torchpark.aids.features import GoalFrameFeatures
 from torchpark.aids.starts import near_starts_free
 from torchpark.aids.step import AidedState, AidState, aided_control
 from torchpark.config import check_types, positive, require
@@ -83,8 +82,8 @@ from trainers.config import AgentConfig, EnvConfig, LoggerConfig, TrainConfig, e
 from trainers.evaluate import load
 from trainers.utils import build_models, make_base_env, make_policy, policy_input
 
-# The student's raw input (before normalisation): the paper's observation and the goal
-# seen from the car (torchpark.GoalFrameFeatures).
+# The student's raw input (before normalisation): the paper's observation, the goal seen
+# from the car (torchpark.GoalFrameFeatures) and optionally the rays' clearance.
 STUDENT_INPUT = "observation_policy"
 
 
@@ -102,7 +101,9 @@ class DistillConfig:
     weighted ``approach_weight`` times a rollout state in the fit; ``speed_exponent`` /
     ``steer_exponent``: the student's action map (u in [-1, 1] drives high * sign(u)
     |u| ** exponent; the fit is the squared error in u); ``gear_head``: the student picks
-    a gear and a (speed, steer) per gear (:func:`imitation_error`); ``epochs`` /
+    a gear and a (speed, steer) per gear (:func:`imitation_error`); ``clearance_features``:
+    the student also reads the gap along each LIDAR ray (torchpark.ClearanceFeatures);
+    ``epochs`` /
     ``dagger_epochs``: passes over the data after the first / each later iteration."""
 
     iterations: int = 2
@@ -120,6 +121,7 @@ class DistillConfig:
     speed_exponent: float = 3.0
     steer_exponent: float = 1.0
     gear_head: bool = True
+    clearance_features: bool = False
     release: float | None = None
     yardstick: int = 200
     seed: int = 0
@@ -205,14 +207,15 @@ class Teacher:
 
 def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
     """The student's TrainConfig: the paper's env and agent (no aid, one action per step of
-    dt) with the goal features and the power action map of ``speed_exponent`` /
-    ``steer_exponent``, the teacher's network sizes; training starts near the goal with
-    probability ``near_goal``."""
+    dt) with the goal features (and the clearance features, if asked) and the power action
+    map of ``speed_exponent`` / ``steer_exponent``, the teacher's network sizes; training
+    starts near the goal with probability ``near_goal``."""
     tcfg, _ = load(teacher)
     student = TrainConfig(
         env=EnvConfig(num_envs=cfg.envs, max_steps=tcfg.env.max_steps),
         agent=AgentConfig(action_exponents=[cfg.speed_exponent, cfg.steer_exponent],
-                          gear_head=cfg.gear_head, goal_features=True),
+                          gear_head=cfg.gear_head, goal_features=True,
+                          clearance_features=cfg.clearance_features),
         model=tcfg.model, logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
     student.train.near_goal_starts = cfg.near_goal
     return student
@@ -236,7 +239,7 @@ def approach_poses(goal: torch.Tensor, reach: float, law: DockingConfig,
                         wrap_angle(alpha + law.settled_heading * side[:, 1] * u[:, 2])), -1)
 
 
-def approach_states(env: TransformedEnv, features: GoalFrameFeatures, teacher: Teacher,
+def approach_states(env: TransformedEnv, features: Transform, teacher: Teacher,
                     count: int, reach: float, generator: torch.Generator
                     ) -> tuple[torch.Tensor, torch.Tensor]:
     """About ``count`` states of the docking law's final approach (:func:`approach_poses`)
@@ -367,7 +370,10 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     inputs = policy_input(scfg, base)
     env = TransformedEnv(base, Compose(*inputs))
     norm = inputs[-1]
-    features = next(t for t in inputs if isinstance(t, GoalFrameFeatures))
+    # The student's feature transforms (between the action maps and the normaliser), applied
+    # outside the env to the final-approach states.
+    features = Compose(*[t.clone() for t in inputs[:-1]
+                         if not isinstance(t, (PowerActionMap, GearActionMap))])
     teacher = Teacher(teacher_path, env, cfg.release)
     if cfg.approach and teacher.aids.docking is None:
         raise ValueError(f"teacher {teacher_path!r} has no docking law to label the final "
@@ -378,6 +384,9 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
     data_in, data_out, data_weight, rows = [], [], [], []
     frames = approach = 0
+    parts = [name for name, on in (("gear head", cfg.gear_head),
+                                   ("clearance features", cfg.clearance_features)) if on]
+    made_of = f" ({', '.join(parts)})" if parts else ""
     started = time.perf_counter()
     for iteration in range(cfg.iterations):
         batches = []
@@ -416,7 +425,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
         path = out / "checkpoint_final.pt"
         torch.save({"config": dataclasses.asdict(scfg), "frames": frames,
                     "actor": actor.state_dict(), "obs_norm": norm.state_dict(),
-                    "trained_by": f"distilled{' (gear head)' if cfg.gear_head else ''} from "
+                    "trained_by": f"distilled{made_of} from "
                                   f"the hybrid {teacher_path}: "
                                   f"{iteration + 1} iteration(s) (DAgger after the first), "
                                   f"{frames:,} labelled frames and {approach:,} "

@@ -30,6 +30,7 @@ from torchrl.envs import (
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
 from torchpark import (
+    ClearanceFeatures,
     GearActionMap,
     GoalFrameFeatures,
     OccupancyCurriculum,
@@ -177,8 +178,8 @@ NORM_DECAY = 0.9999
 def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[Transform]:
     """The transforms between the env and the networks: the optional action maps (the power
     map onto the env's own action bounds, the gear head above it), then from the raw
-    observation (with the optional goal features and brake flag) to the networks' input
-    ``NORMALISED`` (last).
+    observation (with the optional goal and clearance features and brake flag) to the
+    networks' input ``NORMALISED`` (last).
 
     Normalised into its own key: the networks read it, while the raw observation stays in the
     data for evaluation and analysis (final position and heading errors). reduce_batch_dims:
@@ -199,6 +200,9 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
             transforms.append(GearActionMap())
     if agent.goal_features:
         transforms.append(GoalFrameFeatures("observation", "observation_policy"))
+        source = ["observation_policy"]
+    if agent.clearance_features:
+        transforms.append(ClearanceFeatures(base.config, source[0], "observation_policy"))
         source = ["observation_policy"]
     if agent.observe_brake:
         transforms += [DTypeCastTransform(torch.bool, torch.float32, in_keys=["braked"],

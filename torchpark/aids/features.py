@@ -1,9 +1,15 @@
-"""Policy features computed from the paper's observation: the goal in the vehicle's frame.
+"""Policy features computed from the paper's observation: the goal in the vehicle's frame,
+and the clearance left along each LIDAR ray.
 
 The paper's observation gives the goal offset in the world frame; a policy then has to learn a
 rotation by the heading before it can steer. These features hand it the rotated offset, and a
 log-like scale (``asinh(x / precision)``) that stays informative down to the millimetres the
 success test asks for, where a world-frame offset normalised by metres is flat.
+
+The LIDAR reads from the box centre, divided by its 20 m range: a car 10 cm off the ego's side
+and one touching it differ by 0.005 of a ray's range, a few hundredths of a normalised input.
+The clearance features subtract the ego box's own extent along each ray and put the gap left
+on the same log-like scale, where 5 cm and 50 cm are a unit apart.
 """
 
 from __future__ import annotations
@@ -13,6 +19,8 @@ from torch import Tensor
 from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
+from torchpark.config import ParkingConfig
+from torchpark.sim.lidar import ray_angles
 from torchpark.sim.observation import NAV_DIM
 
 GOAL_FEATURES = 7  # ex, ey, cos and sin of the heading error, three asinh scales
@@ -67,6 +75,67 @@ class GoalFrameFeatures(Transform):
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         source = observation_spec[self.in_keys[0]]
         shape = (*source.shape[:-1], source.shape[-1] + GOAL_FEATURES)
+        observation_spec[self.out_keys[0]] = Unbounded(shape=shape, dtype=source.dtype,
+                                                       device=source.device)
+        return observation_spec
+
+
+def box_edge_distance(n_rays: int, length: float, width: float) -> Tensor:
+    """(n_rays,) float32 distance (m) from the centre of a ``length`` x ``width`` box to its
+    edge along each LIDAR ray (angles 2 pi k / n_rays from the box's long axis)."""
+    angles = ray_angles(n_rays)
+    along = (length / 2.0) / torch.cos(angles).abs().clamp_min(1e-12)
+    across = (width / 2.0) / torch.sin(angles).abs().clamp_min(1e-12)
+    return torch.minimum(along, across).to(torch.float32)
+
+
+def ray_clearance(lidar: Tensor, edge: Tensor, max_range: float, precision: float = 0.1
+                  ) -> Tensor:
+    """[..., n_rays] LIDAR readings (distance / ``max_range``, in [0, 1]) and the (n_rays,)
+    :func:`box_edge_distance` of the ego box -> [..., n_rays] ``asinh(gap / precision)``, the
+    gap (m) the ray leaves between the ego box's edge and the first obstacle it meets
+    (<= 0: touching; ``max_range`` - edge where nothing is in range)."""
+    return torch.asinh((lidar * max_range - edge) / precision)
+
+
+class ClearanceFeatures(Transform):
+    """Writes ``out_key`` = cat(``in_key``, :func:`ray_clearance`), the LIDAR read from
+    ``in_key``'s columns NAV_DIM .. NAV_DIM + n_rays (the paper's observation, or the policy
+    input that starts with it, e.g. :class:`GoalFrameFeatures`' output).
+
+    Args:
+        config: the env's config (its vehicle's box, its LIDAR's rays and range).
+        in_key: the paper's observation, or a policy input that starts with it.
+        out_key: where the [..., in_dim + n_rays] policy input goes (may be ``in_key``).
+        precision: the gap (m) below which the asinh turns linear.
+    """
+
+    def __init__(self, config: ParkingConfig, in_key: str = "observation",
+                 out_key: str = "observation_policy", precision: float = 0.1) -> None:
+        if not precision > 0:
+            raise ValueError(f"precision must be > 0 (m), got {precision!r}")
+        super().__init__(in_keys=[in_key], out_keys=[out_key])
+        self.n_rays = config.lidar.n_rays
+        self.max_range = config.lidar.max_range
+        self.precision = precision
+        self.register_buffer("edge", box_edge_distance(self.n_rays, config.vehicle.length,
+                                                       config.vehicle.width))
+
+    def _apply_transform(self, observation: Tensor) -> Tensor:
+        if observation.shape[-1] < NAV_DIM + self.n_rays:
+            raise ValueError(f"{self.in_keys[0]} must have >= {NAV_DIM + self.n_rays} "
+                             f"features, got shape {tuple(observation.shape)}")
+        lidar = observation[..., NAV_DIM:NAV_DIM + self.n_rays]
+        clearance = ray_clearance(lidar, self.edge.to(lidar.device), self.max_range,
+                                  self.precision)
+        return torch.cat([observation, clearance], dim=-1)
+
+    def _reset(self, tensordict, tensordict_reset):
+        return self._call(tensordict_reset)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        source = observation_spec[self.in_keys[0]]
+        shape = (*source.shape[:-1], source.shape[-1] + self.n_rays)
         observation_spec[self.out_keys[0]] = Unbounded(shape=shape, dtype=source.dtype,
                                                        device=source.device)
         return observation_spec
