@@ -1,5 +1,5 @@
 """The emergency brake (torchpark.aids.brake): it never lets the car collide, steers clear
-to the nearest clear angle, counts its interventions, and adds its penalty."""
+to the nearest clear angle, counts its interventions, and adds its penalty to each."""
 
 from __future__ import annotations
 
@@ -86,24 +86,32 @@ def test_bad_steer_clear_raises(value):
         BrakeConfig(steer_clear=value)
 
 
-def test_brake_penalty_is_added_on_braked_steps_only():
-    def drive(penalty: float) -> tuple[list[torch.Tensor], list[torch.Tensor], torch.Tensor]:
+@pytest.mark.parametrize("steer_clear", [0, 5])
+def test_brake_penalty_is_added_on_the_steps_it_stops_or_steers(steer_clear):
+    def drive(penalty: float) -> tuple[list[torch.Tensor], list[torch.Tensor],
+                                       list[torch.Tensor], torch.Tensor]:
+        brake = BrakeConfig(steer_clear=steer_clear, penalty=penalty)
         env = ParkingEnv(64, seed=2, config=ParkingConfig(occupancy=0.9),
-                         aids=AidsConfig(brake=BrakeConfig(penalty=penalty)))
+                         aids=AidsConfig(brake=brake))
         td = env.reset()
-        rewards, braked = [], []
+        rewards, braked, intervened = [], [], []
+        count = torch.zeros(64, dtype=torch.int64)
         action = torch.tensor([[5.0, 0.3]]).expand(64, 2)
         for _ in range(60):
             td = env.step(td.set("action", action))["next"]
             rewards.append(td["reward"][:, 0])
             braked.append(env.state.speed == 0)  # full throttle: speed 0 only when braked
             assert torch.equal(env.aid_state.braked, braked[-1])
-        return rewards, braked, env.aid_state.interventions
+            intervened.append(env.aid_state.interventions > count)
+            count = env.aid_state.interventions
+        return rewards, braked, intervened, count
 
-    plain, braked, brakes = drive(0.0)
-    penalised, same, _ = drive(-3.0)
-    assert torch.equal(brakes, torch.stack(braked).sum(0))  # the episode's count
-    assert all(torch.equal(a, b) for a, b in zip(braked, same, strict=True))
-    for r0, r1, b in zip(plain, penalised, braked, strict=True):
+    plain, braked, intervened, brakes = drive(0.0)
+    penalised, _, same, _ = drive(-3.0)
+    assert torch.equal(brakes, torch.stack(intervened).sum(0))  # the episode's count
+    assert all(torch.equal(a, b) for a, b in zip(intervened, same, strict=True))
+    for r0, r1, b in zip(plain, penalised, intervened, strict=True):
         assert torch.allclose(r1, r0 + torch.where(b, -3.0, 0.0))
-    assert any(b.any() for b in braked) and not all(b.all() for b in braked)
+    stopped, steered = torch.stack(braked), torch.stack(intervened) & ~torch.stack(braked)
+    assert stopped.any() and not stopped.all()
+    assert bool(steered.any()) == (steer_clear > 0)  # steering clear is penalised as well

@@ -75,6 +75,7 @@ def test_the_paper_env_driven_by_the_labels_follows_the_hybrid(teacher_path):
     hybrid_td, paper_td = hybrid.reset(), paper.reset()
     assert torch.equal(hybrid.base_env.state.pose, paper.state.pose)
     moved = steered = docked = 0
+    count = torch.zeros(n, dtype=torch.int64)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(150):
             label = teacher.label(paper_td["observation"])
@@ -84,6 +85,9 @@ def test_the_paper_env_driven_by_the_labels_follows_the_hybrid(teacher_path):
                                        atol=1e-5, rtol=0)
             assert not paper_td["next", "collision"].any()
             assert torch.equal(teacher.state.braked, hybrid_td["next", "braked"][:, 0])
+            # the label's flag (DistillConfig.brake_weight's) is the hybrid's intervention
+            assert torch.equal(teacher.intervened, hybrid_td["next", "interventions"][:, 0] > count)
+            count = hybrid_td["next", "interventions"][:, 0]
             moved += int((label[:, 0] != 0).sum())
             steered += int(hybrid_td["next", "interventions"].sum() > 0)
             docked += int(hybrid_td["next", "docking_engaged"].sum())
@@ -179,6 +183,7 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("noise", float("nan")), ("lr", -1.0),
                                           ("approach", -1), ("approach", 0.5),
                                           ("approach_weight", 0.0),
+                                          ("brake_weight", -1.0),
                                           ("speed_exponent", 0.5),
                                           ("steer_exponent", float("inf")),
                                           ("dagger_epochs", 0), ("gear_head", 1)])

@@ -80,7 +80,7 @@ class TrainAidsConfig:
     near_goal_reach: float = NearGoalStarts.reach
     near_goal_lateral: float = NearGoalStarts.lateral
     near_goal_heading: float = NearGoalStarts.heading
-    # BrakeConfig.penalty: added to the reward of a step the brake stops.
+    # BrakeConfig.penalty: added to the reward of a step the brake stops or steers.
     brake_penalty: float = 0.0
     # The training env's reward on the step that collides (the paper's RewardConfig
     # collision_penalty, -200, by default): far from the goal the paper's per-step reward

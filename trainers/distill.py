@@ -98,7 +98,9 @@ class DistillConfig:
     keeps the wheel to the episode's end, as in the hybrid); ``yardstick``: episodes per
     check after each iteration; ``approach``: final-approach states labelled per level in
     the first iteration (0: none), drawn up to ``approach_reach`` m behind the goal and
-    weighted ``approach_weight`` times a rollout state in the fit; ``speed_exponent`` /
+    weighted ``approach_weight`` times a rollout state in the fit; ``brake_weight``: the
+    weight of a rollout state where the teacher's brake stopped or steered its label;
+    ``speed_exponent`` /
     ``steer_exponent``: the student's action map (u in [-1, 1] drives high * sign(u)
     |u| ** exponent; the fit is the squared error in u); ``gear_head``: the student picks
     a gear and a (speed, steer) per gear (:func:`imitation_error`); ``clearance_features``:
@@ -118,6 +120,7 @@ class DistillConfig:
     approach: int = 32768
     approach_reach: float = 2.0
     approach_weight: float = 1.0
+    brake_weight: float = 1.0
     speed_exponent: float = 3.0
     steer_exponent: float = 1.0
     gear_head: bool = True
@@ -136,7 +139,7 @@ class DistillConfig:
                     value)
         require(0 <= self.approach <= 1 << 20, "DistillConfig.approach",
                 "an int in [0, 1048576]", self.approach)
-        for name in ("lr", "approach_reach", "approach_weight"):
+        for name in ("lr", "approach_reach", "approach_weight", "brake_weight"):
             positive(f"DistillConfig.{name}", getattr(self, name))
         for name in ("speed_exponent", "steer_exponent"):
             value = getattr(self, name)
@@ -176,6 +179,9 @@ class Teacher:
         self.angles = steer_angles(self.base.config, self.aids.brake or BrakeConfig(),
                                    self.base.device)
         self.state = AidState.zeros(self.base.num_envs, self.base.device)
+        # (N,) bool: the brake stopped or steered the last label
+        self.intervened = torch.zeros(self.base.num_envs, dtype=torch.bool,
+                                      device=self.base.device)
         self.release = release
 
     @torch.no_grad()
@@ -198,7 +204,7 @@ class Teacher:
         action = td["action"]
         control = aided_control(AidedState(sim, self.state), action,
                                 self.base.world, self.angles, self.base.config, self.aids)
-        self.state = control.aids
+        self.state, self.intervened = control.aids, control.intervened
         return torch.stack([control.speed, control.steer], dim=-1)
 
     def forget(self, rows: torch.Tensor) -> None:
@@ -270,18 +276,19 @@ def approach_states(env: TransformedEnv, features: Transform, teacher: Teacher,
 
 def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tensor, steps: int,
             teacher_drives: bool, noise: float, generator: torch.Generator
-            ) -> tuple[torch.Tensor, torch.Tensor]:
+            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``steps`` steps of dt of ``env`` (every row reset first), driven by the teacher's
     labels or the student's deterministic actions, noisy on every other row (Gaussian,
     ``noise`` times the env's bounds, added to the env's action). Returns the student's raw
     inputs (steps x N, D) and the teacher's labels there in the student's units (u, the
     (speed, steer) its power map with ``exponents`` turns into them, which a gear head
-    picks by :func:`~torchpark.aids.actions.gear_select`)."""
+    picks by :func:`~torchpark.aids.actions.gear_select`), and where its brake stopped or
+    steered the label (steps x N,) bool."""
     gear = env.action_spec.shape[-1] == GEAR_DIM
     n = env.base_env.num_envs
     high = env.base_env.action_spec.space.high[0]
     noisy = (torch.arange(n, device=env.device) % 2 == 1)[:, None]
-    inputs, labels = [], []
+    inputs, labels, braked = [], [], []
     teacher.forget(torch.ones(n, dtype=torch.bool, device=env.device))
     td = env.reset()
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
@@ -289,6 +296,7 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tenso
             target = power_map_inverse(teacher.label(td["observation"]), high, exponents)
             inputs.append(td[STUDENT_INPUT])
             labels.append(target)
+            braked.append(teacher.intervened)
             action = target
             if not teacher_drives:
                 action = actor(td)["action"]
@@ -300,7 +308,7 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tenso
             td, td_next = env.step_and_maybe_reset(td)
             teacher.forget(td["next", "done"][:, 0])
             td = td_next
-    return torch.cat(inputs), torch.cat(labels)
+    return torch.cat(inputs), torch.cat(labels), torch.cat(braked)
 
 
 def imitation_error(u: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
@@ -392,9 +400,9 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
         batches = []
         for level in PAPER_LEVELS:
             base.occupancy = level
-            x, y = rollout(env, actor, teacher, exponents, cfg.steps, iteration == 0,
-                           cfg.noise, generator)
-            batches.append((x, y, 1.0))
+            x, y, braked = rollout(env, actor, teacher, exponents, cfg.steps, iteration == 0,
+                                   cfg.noise, generator)
+            batches.append((x, y, torch.where(braked, cfg.brake_weight, 1.0)))
             frames += x.shape[0]
         if iteration == 0:
             norm.freeze()  # the teacher's states set the student's input scale
@@ -402,12 +410,13 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
             base.occupancy = level
             x, y = approach_states(env, features, teacher, cfg.approach, cfg.approach_reach,
                                    generator)
-            batches.append((x, power_map_inverse(y, high, exponents), cfg.approach_weight))
+            batches.append((x, power_map_inverse(y, high, exponents),
+                            torch.full((x.shape[0],), cfg.approach_weight, device=x.device)))
             approach += x.shape[0]
         for x, y, weight in batches:
             data_in.append(x)
             data_out.append(y)
-            data_weight.append(torch.full((x.shape[0],), weight, device=x.device))
+            data_weight.append(weight)
         x, y, w = torch.cat(data_in), torch.cat(data_out), torch.cat(data_weight)
         epochs = cfg.epochs if iteration == 0 else cfg.dagger_epochs
         loss = fit(actor, norm.to_observation_norm(), x, y, w, epochs, cfg, optim, generator)

@@ -20,8 +20,8 @@ class BrakeConfig:
     steer_clear: 0, the brake stops such a step; k >= 2, it first tries k steering angles
     evenly spread over the vehicle's range at the commanded speed and takes the step with the
     clear one nearest the commanded angle, stopping only when none is clear.
-    penalty: added to the reward of a step the brake stops (a training signal against
-    leaning on it; 0 by default).
+    penalty: added to the reward of a step the brake stops or steers (a training signal
+    against leaning on it; 0 by default).
     """
 
     steer_clear: int = 0

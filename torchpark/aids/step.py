@@ -95,7 +95,7 @@ def aided_step(state: AidedState, action: Tensor, world: World, steer_angles: Te
     control = aided_control(state, action, world, steer_angles, cfg, aids)
     sim, out = commit(state.sim, control.pose, control.speed, control.collision, world, cfg)
     if aids.brake is not None:
-        out = out._replace(reward=out.reward + torch.where(control.aids.braked[:, None],
+        out = out._replace(reward=out.reward + torch.where(control.intervened[:, None],
                                                            aids.brake.penalty, 0.0))
     return AidedState(sim, control.aids), out, action.isfinite().all()
 
