@@ -1,12 +1,14 @@
 """The emergency brake (torchpark.aids.brake): it never lets the car collide, steers clear
-to the nearest clear angle, counts its interventions, and adds its penalty to each."""
+to the nearest clear angle, keeps its margin, counts its interventions, and adds its penalty
+to each."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from torchpark import AidsConfig, BrakeConfig, ParkingConfig, ParkingEnv
+from torchpark import AidsConfig, BrakeConfig, ParkingConfig, ParkingEnv, VehicleConfig
+from torchpark.aids.brake import fence, goal_room
 from torchpark.sim.vehicle import bicycle_step, vehicle_obb
 from torchpark.sim.world import touches_obstacle
 
@@ -115,3 +117,55 @@ def test_brake_penalty_is_added_on_the_steps_it_stops_or_steers(steer_clear):
     stopped, steered = torch.stack(braked), torch.stack(intervened) & ~torch.stack(braked)
     assert stopped.any() and not stopped.all()
     assert bool(steered.any()) == (steer_clear > 0)  # steering clear is penalised as well
+
+
+@pytest.mark.parametrize("steer_clear", [0, 5])
+def test_brake_keeps_its_margin(steer_clear):
+    """Random driving at 90 %: with a 0.2 m margin no step that starts with the box grown by
+    0.2 m clear of every obstacle ends with it touching one, and nothing collides; the same
+    drive on the exact test (margin 0) comes that close, so the margin is what keeps it off."""
+    entered, interventions = {}, {}
+    for margin in (0.0, 0.2):
+        env = ParkingEnv(64, seed=3, config=ParkingConfig(occupancy=0.9), aids=AidsConfig(
+            brake=BrakeConfig(steer_clear=steer_clear, margin=margin)))
+        td = env.reset()
+        generator = torch.Generator().manual_seed(0)
+        entered[margin] = 0
+        for _ in range(60):
+            action = (torch.rand(64, 2, generator=generator) * 2 - 1) * torch.tensor([5.0, 0.785])
+            clear = ~touches_obstacle(fence(env.state.pose, env.config.vehicle, 0.2), env.world,
+                                      env.state.present)
+            td = env.step(td.set("action", action))["next"]
+            assert not td["collision"].any() and not td["done"].any()
+            close = touches_obstacle(fence(env.state.pose, env.config.vehicle, 0.2), env.world,
+                                     env.state.present)
+            entered[margin] += int((clear & close).sum())
+        interventions[margin] = int(env.aid_state.interventions.sum())
+    assert entered[0.2] == 0 < entered[0.0]
+    assert interventions[0.2] > interventions[0.0]
+
+
+def test_fence_is_the_box_of_a_car_grown_on_every_side():
+    poses = torch.tensor([[1.0, 2.0, 0.3], [-4.0, 0.5, -2.8]])
+    wide = VehicleConfig(width=2.5, length=5.5, rear_overhang=0.75)  # 0.25 m more each side
+    for got, want in zip(fence(poses, VehicleConfig(), 0.25), vehicle_obb(poses, wide),
+                         strict=True):
+        assert torch.allclose(got, want)
+
+
+def test_a_margin_the_goal_breaks_is_refused():
+    """The paper's lot leaves a parked car 0.25 m to its neighbour's slot on each side: 0.5 m
+    to the neighbour's car. A margin that the goal pose itself breaks (at the angled slots'
+    corners, from 0.43 m) would stop every docking there, and is refused by name."""
+    env = ParkingEnv(1, aids=AidsConfig(brake=BrakeConfig(margin=0.4)))
+    assert goal_room(env.world, env.config.vehicle) == pytest.approx(0.5, abs=1e-5)
+    assert goal_room(env.world, env.config.vehicle, 0.4) > 0
+    with pytest.raises(ValueError, match=r"BrakeConfig\.margin must be below 0\.42\d m"):
+        ParkingEnv(1, aids=AidsConfig(brake=BrakeConfig(margin=0.6)))
+
+
+@pytest.mark.parametrize("value", [-0.1, float("nan"), float("inf"), 1.5, True])
+def test_bad_margin_raises(value):
+    with pytest.raises(TypeError if isinstance(value, bool) else ValueError,
+                       match=r"BrakeConfig\.margin"):
+        BrakeConfig(margin=value)

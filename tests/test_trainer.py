@@ -353,6 +353,7 @@ def test_action_repeat_must_divide_the_batch():
     ("agent.emergency_brake=maybe", "emergency_brake"),
     ("agent.observe_brake=true", "agent.observe_brake"),
     ("agent.steer_clear=5", "agent.steer_clear"),
+    ("agent.brake_margin=0.2", "agent.brake_margin"),
     ("agent.gear_head=true", "agent.gear_head"),
     ("loss.max_importance_ratio=1", "loss.max_importance_ratio"),
     ("loss.max_importance_ratio=inf", "loss.max_importance_ratio"),

@@ -23,7 +23,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from torchpark.aids.brake import steer_angles
+from torchpark.aids.brake import check_margin, steer_angles
 from torchpark.aids.config import AidsConfig
 from torchpark.aids.repeat import hold
 from torchpark.aids.starts import draw_near
@@ -127,6 +127,8 @@ class ParkingEnv(EnvBase):
         # SuccessCurriculum and set_success_threshold change the world's threshold in place;
         # a compiled step reads it at run time.
         self._world = build_world(self.layout, cfg)
+        if aids is not None and aids.brake is not None:
+            check_margin(aids.brake.margin, self._world, cfg.vehicle)
         if aids is None:
             step = partial(parking_step, world=self._world, cfg=cfg)
             reset = partial(new_episodes, world=self._world, cfg=cfg)

@@ -55,6 +55,9 @@ class AgentConfig:
     # With the brake, the steering angles it tries (the clear one nearest the commanded)
     # before stopping a step; 0: it stops.
     steer_clear: int = 0
+    # With the brake, metres of room it keeps: it also acts on a step that would bring the
+    # car's box, grown by this much on every side, onto an obstacle (BrakeConfig.margin).
+    brake_margin: float = 0.0
     # Append the env's braked flag (the brake stopped the last step) to the policy's input:
     # a deterministic policy that pushes into a parked car sees that it was stopped.
     observe_brake: bool = False
@@ -275,7 +278,7 @@ def env_configs(cfg: TrainConfig, training: bool) -> tuple[ParkingConfig, AidsCo
     reward = RewardConfig(success_threshold=aids.success_threshold,
                           collision_penalty=aids.collision_penalty) if training else RewardConfig()
     config = ParkingConfig(max_steps=cfg.env.max_steps, reward=reward)
-    brake = BrakeConfig(steer_clear=agent.steer_clear,
+    brake = BrakeConfig(steer_clear=agent.steer_clear, margin=agent.brake_margin,
                         penalty=aids.brake_penalty if training else 0.0) \
         if agent.emergency_brake else None
     docking = DockingConfig(reach=agent.docking_reach, lateral=agent.docking_lateral,
@@ -393,6 +396,8 @@ def _check(cfg: TrainConfig) -> None:
              "of [-1, 1] actions for the power map)", cfg.agent.gear_head)
     _require(cfg.agent.steer_clear == 0 or cfg.agent.emergency_brake, "agent.steer_clear",
              "0 without agent.emergency_brake", cfg.agent.steer_clear)
+    _require(cfg.agent.brake_margin == 0 or cfg.agent.emergency_brake, "agent.brake_margin",
+             "0 without agent.emergency_brake", cfg.agent.brake_margin)
     n, batch, k = cfg.env.num_envs, cfg.collector.frames_per_batch, cfg.agent.action_repeat
     if n < 1:
         raise ValueError(f"env.num_envs must be >= 1, got {n}")

@@ -64,7 +64,9 @@ def composition(cfg: TrainConfig, checkpoint: dict) -> dict[str, str | int]:
     """What the evaluated agent is made of: the COMPOSITION columns."""
     agent = cfg.agent
     brake = "off" if not agent.emergency_brake else (
-        f"steers clear ({agent.steer_clear} angles)" if agent.steer_clear else "stops")
+        f"steers clear ({agent.steer_clear} angles)" if agent.steer_clear else "stops") + (
+        f", keeps {agent.brake_margin:g} m" if agent.emergency_brake and agent.brake_margin
+        else "")
     law = (f"0-{agent.docking_reach:g} m behind the goal, +-{agent.docking_lateral:g} m"
            if agent.docking else "off")
     aids = [name for name, on in (("emergency brake", agent.emergency_brake),

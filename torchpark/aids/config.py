@@ -22,16 +22,22 @@ class BrakeConfig:
     clear one nearest the commanded angle, stopping only when none is clear.
     penalty: added to the reward of a step the brake stops or steers (a training signal
     against leaning on it; 0 by default).
+    margin: m; > 0, the brake also acts on a step that would bring the car's box, grown by
+    ``margin`` on every side, onto an obstacle it was clear of at the step's start: the car
+    keeps that much room (a pose that starts closer keeps the exact test). 0: the exact test.
     """
 
     steer_clear: int = 0
     penalty: float = 0.0
+    margin: float = 0.0  # m
 
     def __post_init__(self) -> None:
         check_types(self)
         require(self.steer_clear == 0 or 2 <= self.steer_clear <= 1024,
                 "BrakeConfig.steer_clear", "0 or an int in [2, 1024]", self.steer_clear)
         require(math.isfinite(self.penalty), "BrakeConfig.penalty", "finite", self.penalty)
+        require(math.isfinite(self.margin) and 0.0 <= self.margin <= 1.0, "BrakeConfig.margin",
+                "in [0, 1] m", self.margin)
 
 
 @dataclass(frozen=True)

@@ -79,7 +79,8 @@ def aided_control(state: AidedState, action: Tensor, world: World, steer_angles:
     braked = intervened = torch.zeros_like(collision)
     if aids.brake is not None:
         pose, v, delta, braked, intervened = apply_brake(sim.pose, pose, v, delta, collision,
-                                                         sim.present, steer_angles, world, cfg)
+                                                         sim.present, steer_angles, world, cfg,
+                                                         aids.brake.margin)
         collision = torch.zeros_like(collision)
     aid = AidState(braked, aid.interventions + intervened.long(), engaged, reverses)
     return Control(v, delta, pose, collision, aid, intervened)
