@@ -272,7 +272,8 @@ def test_evaluation_table_has_the_stated_columns(smoke_run, tmp_path):
 def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     """Every training option off the paper's path at once: held actions, the cubic speed map,
     near-goal starts, the emergency brake, a state-dependent std, the success curriculum,
-    the docking layer, the brake steering clear and the policy seeing it, the gear head."""
+    the docking layer, the brake steering clear with a margin and the policy seeing it, the
+    gear head."""
     cfg = load_config("smoke", [
         f"logger.log_dir={tmp_path}", "agent.action_repeat=2",
         "agent.action_exponents=[3.0,1.0]", "train.near_goal_starts=0.5",
@@ -281,8 +282,10 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
         "collector.total_frames=4096", "curriculum.success_start=1000.0",
         "train.brake_penalty=-1.0", "curriculum.success_window=1024", "agent.docking=true",
         "agent.docking_lateral=1.0", "agent.steer_clear=5", "agent.observe_brake=true",
-        "agent.gear_head=true",
+        "agent.gear_head=true", "agent.brake_margin=0.2",
     ])
+    assert env_configs(cfg, True)[1].brake.margin == env_configs(cfg, False)[1].brake.margin \
+        == 0.2
     final = train(cfg)
     ckpt = torch.load(final, weights_only=True)
     assert ckpt["frames"] == 4096
@@ -297,6 +300,7 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     assert rows[0]["collision"] == 0.0  # the brake stops every colliding step
     assert 0 < rows[0]["mean_length"] <= cfg.env.max_steps
     assert 0.0 <= rows[0]["docked"] <= 1.0
+    assert rows[0]["brake"] == "steers clear (5 angles), keeps 0.2 m"
 
 
 def test_training_aids_stay_out_of_the_evaluation_env():
