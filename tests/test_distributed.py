@@ -5,6 +5,7 @@ test that starts workers has a timeout."""
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -28,9 +29,19 @@ ENV = {**os.environ, "OMP_NUM_THREADS": "1", "GLOO_SOCKET_IFNAME": "lo"}
 
 
 def run(args: list[str], timeout: float) -> None:
-    result = subprocess.run([sys.executable, *args], cwd=ROOT, env=ENV, timeout=timeout,
-                            capture_output=True, text=True)
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    """Run ``python args`` in its own process group; past ``timeout`` s kill the whole group
+    (the launcher and its ranks: none is left holding a port) and fail with its output."""
+    with subprocess.Popen([sys.executable, *args], cwd=ROOT, env=ENV, text=True,
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                          start_new_session=True) as proc:
+        try:
+            out, err = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            out, err = proc.communicate()
+            pytest.fail(f"{' '.join(args)} ran past {timeout} s (killed with its ranks):\n"
+                        f"{out[-3000:]}{err[-3000:]}")
+    assert proc.returncode == 0, out[-3000:] + err[-3000:]
 
 
 @pytest.mark.timeout(180)
