@@ -21,9 +21,10 @@ from __future__ import annotations
 import argparse
 
 import torch
+from brake_options import add_brake_options, brake_of
 from torchrl.envs import TransformedEnv
 
-from torchpark import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts, ParkingEnv
+from torchpark import AidsConfig, DockingConfig, NearGoalStarts, ParkingEnv
 from torchpark.runner import run_episodes
 
 _FUNNEL = DockingConfig()
@@ -35,10 +36,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", type=int, default=500)
     parser.add_argument("--occupancies", type=float, nargs="+", default=[0.0, 0.9])
-    parser.add_argument("--brake", action=argparse.BooleanOptionalAction, default=True,
-                        help="the emergency brake under the law")
-    parser.add_argument("--steer-clear", type=int, default=5,
-                        help="steering angles the brake tries before stopping (0: it stops)")
+    add_brake_options(parser)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     print("| start box: back (m), side (m), heading (rad) | occupancy | success (C < 4e-4) "
@@ -49,7 +47,7 @@ def main() -> None:
             near_goal_starts=NearGoalStarts(probability=1.0, reach=back, lateral=side,
                                             heading=heading, candidates=32),
             docking=DockingConfig(lateral=side, heading=heading),
-            brake=BrakeConfig(steer_clear=args.steer_clear) if args.brake else None)
+            brake=brake_of(args))
         for occupancy in args.occupancies:
             env = ParkingEnv(args.envs, seed=args.seed, aids=aids)
             env.occupancy = occupancy

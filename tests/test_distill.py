@@ -15,10 +15,11 @@ from tensordict import TensorDict
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchpark import ParkingConfig, ParkingEnv
+from torchpark import ParkingConfig, ParkingEnv, PlannerConfig
 from torchpark.aids.actions import PowerActionMap, gear_inverse, power_map_inverse
 from torchpark.aids.docking import docking_action, error_from_goal, in_funnel
 from torchpark.aids.features import GoalFrameFeatures
+from torchpark.aids.planner import plan_control
 from trainers.config import env_configs, load_config
 from trainers.distill import (
     DistillConfig,
@@ -125,6 +126,44 @@ def test_a_teacher_without_the_law_has_no_final_approach_to_label(tmp_path, caps
     main([path, "--out", str(tmp_path / "student"), "--envs", "4", "--steps", "2",
           "--epochs", "1", "--yardstick", "2", "--approach", "0"])
     assert (tmp_path / "student" / "checkpoint_final.pt").exists()
+
+
+def test_the_planner_teacher_drives_the_planner_then_the_law_in_its_target(teacher_path):
+    plan = PlannerConfig(cell=1.0, headings=32, step=1.5)  # coarse: builds in seconds
+    paper = ParkingEnv(16, seed=3, config=ParkingConfig(occupancy=0.9))
+    teacher = Teacher(teacher_path, TransformedEnv(paper), planner=plan)
+    law = teacher.aids.docking
+    assert (law.reach, law.lateral, law.heading) == (plan.reach, plan.lateral, plan.heading)
+    td = paper.reset()
+    sim = paper.state
+    label = teacher.label(td["observation"])
+    v, delta, _ = plan_control(teacher.planner, sim.pose, sim.speed, sim.goal_slot)
+    outside = ~teacher.state.docking_engaged
+    assert outside.all()  # uniform starts lie outside the narrowed funnel
+    free = ~teacher.intervened
+    assert free.any()
+    assert torch.equal(label[free], torch.stack((v, delta), -1)[free])
+    # lined up 5 m behind each goal: the law drives in
+    goal = sim.goal
+    back = torch.stack((goal[:, 0] - 5 * torch.cos(goal[:, 2]),
+                        goal[:, 1] - 5 * torch.sin(goal[:, 2]), goal[:, 2]), -1)
+    teacher.forget(torch.ones(16, dtype=torch.bool))
+    obs = paper.set_state(sim._replace(pose=back, speed=torch.zeros(16)))["observation"]
+    label = teacher.label(obs)
+    assert teacher.state.docking_engaged.all()
+    law_v, law_delta = docking_action(error_from_goal(back, goal),
+                                      torch.zeros(16, dtype=torch.bool), law,
+                                      paper.config.vehicle)
+    free = ~teacher.intervened
+    assert torch.equal(label[free], torch.stack((law_v, law_delta), -1)[free])
+
+
+def test_the_planner_needs_the_teachers_law(tmp_path):
+    brake_only = [o for o in HYBRID if o != "agent.docking=true"]
+    path = write_checkpoint(tmp_path / "brake.pt", brake_only)
+    with pytest.raises(ValueError, match="no docking law to take over from the planner"):
+        Teacher(path, TransformedEnv(ParkingEnv(2, seed=0)),
+                planner=PlannerConfig(cell=1.0, headings=32, step=1.5))
 
 
 def test_the_inverse_power_map_gives_what_the_map_turns_into_the_control():

@@ -6,7 +6,13 @@ functions; ``torchpark.aids`` the agent-side aids (``ParkingEnv(..., aids=AidsCo
 """
 
 from torchpark.aids.actions import GearActionMap, PowerActionMap
-from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts
+from torchpark.aids.config import (
+    AidsConfig,
+    BrakeConfig,
+    DockingConfig,
+    NearGoalStarts,
+    PlannerConfig,
+)
 from torchpark.aids.features import ClearanceFeatures, GoalFrameFeatures
 from torchpark.aids.success_curriculum import SuccessCurriculum
 from torchpark.config import LidarConfig, LotConfig, ParkingConfig, RewardConfig, VehicleConfig
@@ -32,6 +38,7 @@ __all__ = [
     "ParkingEnv",
     "ParkingGymEnv",
     "ParkingVectorEnv",
+    "PlannerConfig",
     "PowerActionMap",
     "RewardConfig",
     "SuccessCurriculum",

@@ -4,6 +4,7 @@ distilled into one network that drives the paper's env alone.
     python -m trainers.distill TEACHER --out DIR [--iterations 2] [--envs 128] [--steps 400]
                                              [--epochs 32] [--dagger-epochs 16]
                                              [--approach 32768] [--seed 0] [--overwrite]
+                                             [--planner] [--clearance-features]
 
 Each iteration runs a driver in lots at every occupancy level, half the starts near the
 goal: the teacher in the first (behaviour cloning), the current student in the later ones
@@ -34,6 +35,12 @@ a speed near 0, and freezes there (85 % of its episodes from uniform starts did,
 With ``gear_head`` (the default) the student outputs a gear and a (speed, steer) pair per
 gear (:class:`torchpark.aids.actions.GearActionMap`), fitted to the label's gear (its speed's
 sign) and, for that gear's pair only, to the label: the gear's sign picks one answer.
+
+With ``--planner`` the teacher's policy gives way to the approach planner
+(:mod:`torchpark.aids.planner`): a route that keeps the car off every slot but its goal's,
+so the teacher's approach needs no brake at any occupancy, handing over to the docking law
+once lined up behind the slot (the law's funnel narrowed to the planner's target); the
+checkpoint still gives the law, the brake and the student's sizes.
 
 The student reads what the paper's agent can (the paper's observation and its goal-frame
 features, normalised; the observed speed's sign tells it which way the teacher's multi-point
@@ -70,8 +77,9 @@ from torchpark.aids.actions import (
     power_map_inverse,
 )
 from torchpark.aids.brake import steer_angles
-from torchpark.aids.config import BrakeConfig, DockingConfig
+from torchpark.aids.config import BrakeConfig, DockingConfig, PlannerConfig
 from torchpark.aids.docking import error_from_goal
+from torchpark.aids.planner import build_planner, plan_control
 from torchpark.aids.starts import near_starts_free
 from torchpark.aids.step import AidedState, AidState, aided_control
 from torchpark.config import check_types, positive, require
@@ -105,6 +113,8 @@ class DistillConfig:
     |u| ** exponent; the fit is the squared error in u); ``gear_head``: the student picks
     a gear and a (speed, steer) per gear (:func:`imitation_error`); ``clearance_features``:
     the student also reads the gap along each LIDAR ray (torchpark.ClearanceFeatures);
+    ``planner``: the teacher's policy is replaced by the approach planner
+    (:mod:`torchpark.aids.planner`), the docking law's funnel by the planner's target;
     ``epochs`` /
     ``dagger_epochs``: passes over the data after the first / each later iteration."""
 
@@ -125,6 +135,7 @@ class DistillConfig:
     steer_exponent: float = 1.0
     gear_head: bool = True
     clearance_features: bool = False
+    planner: bool = False
     release: float | None = None
     yardstick: int = 200
     seed: int = 0
@@ -158,7 +169,8 @@ class Teacher:
     would drive with there, and advances the aids' state (the docking law's gear, the
     brake's flag) as if it had; ``forget(rows)`` clears it where episodes ended."""
 
-    def __init__(self, path: str, env: TransformedEnv, release: float | None = None) -> None:
+    def __init__(self, path: str, env: TransformedEnv, release: float | None = None,
+                 planner: PlannerConfig | None = None) -> None:
         cfg, checkpoint = load(path)
         _, self.aids = env_configs(cfg, training=False)
         if self.aids is None or (self.aids.docking is None and self.aids.brake is None):
@@ -166,6 +178,17 @@ class Teacher:
                              f"distil a hybrid agent")
         self.actor = make_policy(cfg, checkpoint["actor"])
         self.base = env.base_env
+        # With the planner, it drives where the checkpoint's policy did, up to its target,
+        # which becomes the docking law's funnel.
+        self.planner = None
+        if planner is not None:
+            if self.aids.docking is None:
+                raise ValueError(f"teacher {path!r} has no docking law to take over from the "
+                                 f"planner: drop --planner")
+            self.aids = dataclasses.replace(self.aids, docking=dataclasses.replace(
+                self.aids.docking, reach=planner.reach, lateral=planner.lateral,
+                heading=planner.heading))
+            self.planner = build_planner(self.base.layout, self.base.config.vehicle, planner)
         # The teacher's own input transforms (goal features, brake flag) with its frozen
         # normaliser, applied outside an env.
         probe = make_base_env(cfg, training=False, num_envs=1, seed=0)
@@ -195,13 +218,17 @@ class Teacher:
                     & (error.lateral.abs() <= law.lateral + self.release))
             self.state = self.state._replace(docking_engaged=self.state.docking_engaged & near,
                                              docking_reverses=self.state.docking_reverses & near)
-        td = TensorDict({"observation": observation, "braked": self.state.braked[:, None]},
-                        [n])
-        with set_exploration_type(ExplorationType.DETERMINISTIC):
-            td = self.actor(self.inputs(td))
-        for action_map in reversed(self.action_maps):
-            td = action_map.inv(td)
-        action = td["action"]
+        if self.planner is not None:
+            action = torch.stack(plan_control(self.planner, sim.pose, sim.speed,
+                                              sim.goal_slot)[:2], -1)
+        else:
+            td = TensorDict({"observation": observation,
+                             "braked": self.state.braked[:, None]}, [n])
+            with set_exploration_type(ExplorationType.DETERMINISTIC):
+                td = self.actor(self.inputs(td))
+            for action_map in reversed(self.action_maps):
+                td = action_map.inv(td)
+            action = td["action"]
         control = aided_control(AidedState(sim, self.state), action,
                                 self.base.world, self.angles, self.base.config, self.aids)
         self.state, self.intervened = control.aids, control.intervened
@@ -382,7 +409,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     # outside the env to the final-approach states.
     features = Compose(*[t.clone() for t in inputs[:-1]
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
-    teacher = Teacher(teacher_path, env, cfg.release)
+    teacher = Teacher(teacher_path, env, cfg.release, PlannerConfig() if cfg.planner else None)
     if cfg.approach and teacher.aids.docking is None:
         raise ValueError(f"teacher {teacher_path!r} has no docking law to label the final "
                          f"approach with: pass --approach 0")
@@ -395,6 +422,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     parts = [name for name, on in (("gear head", cfg.gear_head),
                                    ("clearance features", cfg.clearance_features)) if on]
     made_of = f" ({', '.join(parts)})" if parts else ""
+    source = f"the approach planner with the aids of {teacher_path}" if cfg.planner \
+        else f"the hybrid {teacher_path}"
     started = time.perf_counter()
     for iteration in range(cfg.iterations):
         batches = []
@@ -434,8 +463,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
         path = out / "checkpoint_final.pt"
         torch.save({"config": dataclasses.asdict(scfg), "frames": frames,
                     "actor": actor.state_dict(), "obs_norm": norm.state_dict(),
-                    "trained_by": f"distilled{made_of} from "
-                                  f"the hybrid {teacher_path}: "
+                    "trained_by": f"distilled{made_of} from {source}: "
                                   f"{iteration + 1} iteration(s) (DAgger after the first), "
                                   f"{frames:,} labelled frames and {approach:,} "
                                   f"final-approach states"}, path)

@@ -112,6 +112,51 @@ class DockingConfig:
 
 
 @dataclass(frozen=True)
+class PlannerConfig:
+    """The approach planner (:mod:`torchpark.aids.planner`): a cost-to-go over a grid of
+    rear-axle poses ``cell`` m and 2 pi / ``headings`` rad apart, by arcs of ``step`` m at
+    ``steers`` steering angles, forwards and reversing (``reverse_cost`` per metre). On the
+    grid the car box, grown by ``clearance`` m, keeps off every slot but the goal's and off
+    the walls, and a path within ``margin`` m of them costs ``band_cost`` times as much per
+    metre. Its target: ``reach_min`` to ``reach`` m back along the slot axis from the goal,
+    within ``lateral`` m and ``heading`` rad of it. It drives at ``speed`` m/s; a gear
+    change costs ``switch_cost`` m; reading the cost between cells, one no clear path
+    leaves counts ``blocked_cost`` m dearer than the others."""
+
+    cell: float = 0.5  # m
+    headings: int = 64
+    step: float = 0.75  # m
+    steers: int = 5
+    reverse_cost: float = 1.5
+    switch_cost: float = 2.0  # m
+    clearance: float = 0.0  # m
+    margin: float = 0.2  # m
+    band_cost: float = 5.0
+    blocked_cost: float = 10.0  # m
+    speed: float = 2.0  # m/s
+    reach_min: float = 3.0  # m
+    reach: float = 7.0  # m
+    lateral: float = 0.5  # m
+    heading: float = 0.25  # rad
+
+    def __post_init__(self) -> None:
+        check_types(self)
+        for name in ("cell", "step", "speed", "reach", "lateral", "heading"):
+            positive(f"PlannerConfig.{name}", getattr(self, name))
+        require(8 <= self.headings <= 1024, "PlannerConfig.headings", "an int in [8, 1024]",
+                self.headings)
+        require(2 <= self.steers <= 64, "PlannerConfig.steers", "an int in [2, 64]",
+                self.steers)
+        for name in ("reverse_cost", "switch_cost", "clearance", "margin", "band_cost",
+                     "blocked_cost", "reach_min"):
+            value = getattr(self, name)
+            require(math.isfinite(value) and value >= 0, f"PlannerConfig.{name}",
+                    "finite, >= 0", value)
+        require(self.reach_min < self.reach, "PlannerConfig.reach_min",
+                f"< reach = {self.reach}", self.reach_min)
+
+
+@dataclass(frozen=True)
 class AidsConfig:
     """The aids an agent is made of, each off unless set.
 

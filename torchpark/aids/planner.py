@@ -1,0 +1,262 @@
+"""A route planner for the approach: the cost-to-go to each slot's docking funnel over a grid
+of rear-axle poses, and the control that descends it.
+
+The lot's geometry is the same in every env and a parked car lies inside its slot, so a
+path whose car box (grown by a margin) overlaps no slot but the goal's and no wall is clear
+of the parked cars at every occupancy. :func:`cost_to_go` computes, once per lot, the length
+of the shortest such path from every cell of an (x, y, heading) grid to the cells where the
+car is lined up behind each slot (the target: 0 to ``reach`` m back along the slot axis,
+within ``lateral`` m and ``heading`` rad of it), by value iteration over arcs of
+``step`` m at a few steering angles forwards and in reverse (reversing costs
+``reverse_cost`` per metre, and ``band_cost`` times as much within ``margin`` m of a slot
+or wall): a car-like vehicle's multi-point turns come out of it. Every step of dt
+:func:`plan_control` tries every sequence of two such arcs from the car's exact pose, reads
+the cost-to-go at its end between cells (:func:`interpolated_cost`), and drives the first
+arc of the cheapest (a gear change costs ``switch_cost`` m more, so it does not chatter):
+the docking law (:mod:`torchpark.aids.docking`), with its funnel set to the planner's
+target, takes over from there. Everything is batched tensor ops: the tables over every
+slot at once, the control over every env (the sweeps' loop is over sweeps and arcs).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from torchpark.aids.config import PlannerConfig
+from torchpark.aids.docking import error_from_goal
+from torchpark.config import VehicleConfig
+from torchpark.sim.geometry import OrientedBoxes, oriented_boxes, separation, wrap_angle
+from torchpark.sim.layout import LotLayout
+from torchpark.sim.vehicle import vehicle_obb
+
+
+class Grid(NamedTuple):
+    """The pose grid: ``cells`` (X, Y) positions ``cell`` m apart from (0, 0) and
+    ``headings`` angles 2 pi / headings apart from -pi; flat index ((h X) + x) Y + y."""
+
+    cell: float
+    size_x: int
+    size_y: int
+    headings: int
+
+    @property
+    def count(self) -> int:
+        return self.headings * self.size_x * self.size_y
+
+
+def grid_of(layout: LotLayout, cfg: PlannerConfig) -> Grid:
+    """The grid covering the lot rectangle at ``cfg.cell`` m and ``cfg.headings`` angles."""
+    return Grid(cfg.cell, math.floor(layout.width / cfg.cell) + 1,
+                math.floor(layout.height / cfg.cell) + 1, cfg.headings)
+
+
+def grid_poses(grid: Grid, device: torch.device | str) -> Tensor:
+    """The rear-axle pose (x m, y m, psi rad) of every cell, (count, 3), in flat order."""
+    h, x, y = torch.meshgrid(torch.arange(grid.headings, device=device),
+                             torch.arange(grid.size_x, device=device),
+                             torch.arange(grid.size_y, device=device), indexing="ij")
+    psi = wrap_angle(h.float() * (2.0 * math.pi / grid.headings) - math.pi)
+    return torch.stack((x.float() * grid.cell, y.float() * grid.cell, psi), -1).reshape(-1, 3)
+
+
+def cell_index(pose: Tensor, grid: Grid) -> Tensor:
+    """The flat index of the nearest cell to poses [..., 3], int64 [...]; -1 off the grid."""
+    ix = torch.round(pose[..., 0] / grid.cell).long()
+    iy = torch.round(pose[..., 1] / grid.cell).long()
+    ih = torch.round((pose[..., 2] + math.pi) * (grid.headings / (2.0 * math.pi))).long()
+    ih = ih.remainder(grid.headings)
+    inside = (ix >= 0) & (ix < grid.size_x) & (iy >= 0) & (iy < grid.size_y)
+    return torch.where(inside, (ih * grid.size_x + ix) * grid.size_y + iy, -1)
+
+
+def arcs(pose: Tensor, travel: Tensor, curvature: Tensor) -> Tensor:
+    """Rear-axle poses [..., K, 3] after ``travel`` (K,) m of path (< 0: reversing) at
+    ``curvature`` (K,) 1/m from poses [..., 3]: exact circular arcs of the bicycle."""
+    x, y, psi = (t[..., None] for t in pose.unbind(-1))
+    turn = travel * curvature
+    straight = curvature.abs() < 1e-9
+    k = torch.where(straight, 1.0, curvature)
+    end = psi + turn
+    dx = torch.where(straight, travel * torch.cos(psi), (torch.sin(end) - torch.sin(psi)) / k)
+    dy = torch.where(straight, travel * torch.sin(psi), (torch.cos(psi) - torch.cos(end)) / k)
+    return torch.stack((x + dx, y + dy, wrap_angle(end)), -1)
+
+
+class Primitives(NamedTuple):
+    """The planner's arcs, fields (K,): ``travel`` m (signed by gear), ``steer`` rad,
+    ``curvature`` 1/m, ``cost`` m-equivalent."""
+
+    travel: Tensor
+    steer: Tensor
+    curvature: Tensor
+    cost: Tensor
+
+
+def primitives(cfg: PlannerConfig, vehicle: VehicleConfig, device: torch.device | str
+               ) -> Primitives:
+    """``cfg.steers`` steering angles over the vehicle's range, forwards and reversing."""
+    steer = torch.linspace(-vehicle.max_steer, vehicle.max_steer, cfg.steers, device=device)
+    gear = torch.tensor([1.0, -1.0], device=device).repeat_interleave(cfg.steers)
+    steer = steer.repeat(2)
+    cost = torch.where(gear > 0, 1.0, cfg.reverse_cost) * cfg.step
+    return Primitives(gear * cfg.step, steer, torch.tan(steer) / vehicle.wheelbase, cost)
+
+
+def _grown(boxes: OrientedBoxes, margin: float) -> OrientedBoxes:
+    return boxes._replace(half_length=boxes.half_length + margin,
+                          half_width=boxes.half_width + margin)
+
+
+def free_cells(poses: Tensor, layout: LotLayout, vehicle: VehicleConfig, margin: float,
+               chunk: int = 16384) -> Tensor:
+    """Whether the car box at each pose (C, 3), grown by ``margin`` m, is clear of the
+    walls and of every slot but the goal's: bool (S, C), row s for goal slot s."""
+    slots = oriented_boxes(layout.slots)
+    walls = oriented_boxes(layout.walls)
+    rows = []
+    for part in poses.split(chunk):
+        ego = _grown(vehicle_obb(part, vehicle), margin)
+        ego = OrientedBoxes(*(t[:, None] for t in ego))
+        in_slot = separation(ego, slots) <= 0.0  # (c, S)
+        count = in_slot.sum(-1, keepdim=True)
+        clear = (separation(ego, walls) > 0.0).all(-1, keepdim=True)
+        rows.append(clear & ((count == 0) | ((count == 1) & in_slot)))
+    return torch.cat(rows).T.contiguous()
+
+
+def target_cells(poses: Tensor, layout: LotLayout, cfg: PlannerConfig) -> Tensor:
+    """Whether each pose (C, 3) is lined up behind each slot: bool (S, C)."""
+    error = error_from_goal(poses[None], layout.goal_poses[:, None])
+    return ((error.remaining >= cfg.reach_min) & (error.remaining <= cfg.reach)
+            & (error.lateral.abs() <= cfg.lateral) & (error.heading.abs() <= cfg.heading))
+
+
+def cost_to_go(layout: LotLayout, vehicle: VehicleConfig, cfg: PlannerConfig,
+               max_sweeps: int = 10_000) -> Tensor:
+    """The shortest clear path's cost from every cell to each slot's target, float32
+    (S, count) (inf where none is found): value iteration until no cell changes."""
+    device = layout.slots.device
+    grid = grid_of(layout, cfg)
+    poses = grid_poses(grid, device)
+    prim = primitives(cfg, vehicle, device)
+    ends = cell_index(arcs(poses, prim.travel, prim.curvature), grid)  # (C, K)
+    mids = cell_index(arcs(poses, prim.travel / 2, prim.curvature), grid)
+    free = free_cells(poses, layout, vehicle, cfg.clearance)  # (S, C)
+    roomy = free_cells(poses, layout, vehicle, cfg.margin)
+    blocked = torch.cat((~free, torch.ones_like(free[:, :1])), 1)  # index -1: off the grid
+    inf = torch.tensor(math.inf, device=device)
+    value = torch.where(target_cells(poses, layout, cfg) & roomy, 0.0, inf)
+    value = torch.cat((value, torch.full_like(value[:, :1], math.inf)), 1)
+    # The cost of each arc from each cell (S, C): inf where it ends or passes off the free
+    # cells, ``band_cost`` times more where it ends within the margin of a slot or wall.
+    arc_cost = [torch.where(blocked[:, ends[:, k]] | blocked[:, mids[:, k]], inf,
+                            torch.where(roomy[:, ends[:, k].clamp(min=0)], prim.cost[k],
+                                        prim.cost[k] * cfg.band_cost))
+                for k in range(ends.shape[1])]
+    for _ in range(max_sweeps):
+        best = value[:, :-1]
+        for k, cost in enumerate(arc_cost):
+            best = torch.minimum(best, value[:, ends[:, k]] + cost)
+        best = torch.where(free, best, inf)
+        if torch.equal(best, value[:, :-1]):
+            break
+        value = torch.cat((best, value[:, -1:]), 1)
+    return value[:, :-1].contiguous()
+
+
+class Planner(NamedTuple):
+    """A lot's cost-to-go tables (:func:`cost_to_go`) with what reading them needs: the
+    slots (S,) and walls (4,) its paths keep off, and the vehicle."""
+
+    value: Tensor  # (S, count) float32
+    grid: Grid
+    prim: Primitives
+    slots: OrientedBoxes
+    walls: OrientedBoxes
+    vehicle: VehicleConfig
+    cfg: PlannerConfig
+
+
+def build_planner(layout: LotLayout, vehicle: VehicleConfig, cfg: PlannerConfig) -> Planner:
+    """The planner of a lot (its tables take a few seconds to two minutes to compute)."""
+    device = layout.slots.device
+    return Planner(cost_to_go(layout, vehicle, cfg), grid_of(layout, cfg),
+                   primitives(cfg, vehicle, device), oriented_boxes(layout.slots),
+                   oriented_boxes(layout.walls), vehicle, cfg)
+
+
+def clear_of_slots(planner: Planner, pose: Tensor, goal_slot: Tensor) -> Tensor:
+    """Whether the car box at poses (N, M, 3) is clear of the walls and of every slot but
+    ``goal_slot`` (N,)'s, bool (N, M): exactly, not on the grid."""
+    ego = vehicle_obb(pose, planner.vehicle)
+    ego = OrientedBoxes(*(t[..., None] for t in ego))
+    other = torch.arange(planner.slots.cx.shape[0], device=pose.device) != goal_slot[:, None]
+    in_other = (separation(ego, planner.slots) <= 0.0) & other[:, None, :]
+    return ~in_other.any(-1) & (separation(ego, planner.walls) > 0.0).all(-1)
+
+
+UNREACHABLE = 1000.0  # m: the cost read where no surrounding cell has a clear path
+
+
+def interpolated_cost(value: Tensor, slot: Tensor, pose: Tensor, grid: Grid,
+                      blocked_cost: float) -> Tensor:
+    """The cost-to-go tables ``value`` (S, count) of slots ``slot`` (N,) read at poses
+    (N, K, 3), (N, K): linear
+    in x, y and heading between the 8 surrounding cells, a cell no clear path leaves (or off
+    the grid) counting as the dearest of the others plus ``blocked_cost`` m, so the cost
+    rises towards obstacles; UNREACHABLE m where no surrounding cell has a clear path."""
+    fx = pose[..., 0] / grid.cell
+    fy = pose[..., 1] / grid.cell
+    fh = (pose[..., 2] + math.pi) * (grid.headings / (2.0 * math.pi))
+    x0, y0, h0 = fx.floor(), fy.floor(), fh.floor()
+    wx, wy, wh = fx - x0, fy - y0, fh - h0
+    costs, weights = [], []
+    for dx, dy, dh in ((a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)):
+        ix, iy = (x0 + dx).long(), (y0 + dy).long()
+        ih = (h0 + dh).long().remainder(grid.headings)
+        inside = (ix >= 0) & (ix < grid.size_x) & (iy >= 0) & (iy < grid.size_y)
+        index = ((ih * grid.size_x + ix.clamp(0, grid.size_x - 1)) * grid.size_y
+                 + iy.clamp(0, grid.size_y - 1))
+        cost = value.view(-1)[index + slot[:, None] * grid.count]
+        costs.append(torch.where(inside, cost, math.inf))
+        weights.append((wx if dx else 1 - wx) * (wy if dy else 1 - wy) * (wh if dh else 1 - wh))
+    cost, weight = torch.stack(costs, -1), torch.stack(weights, -1)
+    finite = cost.isfinite()
+    dearest = torch.where(finite, cost, -math.inf).amax(-1, keepdim=True)
+    cost = torch.where(finite, cost, dearest + blocked_cost)
+    return torch.where(finite.any(-1), (weight * cost).sum(-1), UNREACHABLE)
+
+
+def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tensor
+                 ) -> tuple[Tensor, Tensor, Tensor]:
+    """The planner's control at poses (N, 3) moving at ``speed`` (N,) m/s towards slots
+    ``goal_slot`` (N,): (v m/s, delta rad, cost-to-go m), each (N,). Of the sequences of
+    two arcs from the exact pose, the one whose end has the least cost
+    (:func:`interpolated_cost`) plus the arcs' own (plus ``switch_cost`` for each change of
+    gear, the first against the way the car moves), among those whose two ends keep the car
+    off every slot but the goal's (:func:`clear_of_slots`), gives the first arc's gear and
+    steering; v is ``speed`` in that gear, 0 where every sequence is blocked or ends among
+    cells no clear path leaves."""
+    prim, cfg = planner.prim, planner.cfg
+    gear = torch.sign(prim.travel)
+    first = arcs(pose, prim.travel, prim.curvature)  # (N, K, 3)
+    second = arcs(first, prim.travel, prim.curvature)  # (N, K, K, 3)
+    n, k = first.shape[:2]
+    ahead = interpolated_cost(planner.value, goal_slot, second.reshape(n, k * k, 3),
+                              planner.grid, cfg.blocked_cost).view(n, k, k)
+    moving = torch.sign(speed)[:, None]
+    switch = torch.where((moving != 0) & (moving != gear), cfg.switch_cost, 0.0)  # (N, K)
+    again = torch.where(gear[:, None] != gear[None, :], cfg.switch_cost, 0.0)  # (K, K)
+    total = ahead + again + prim.cost[None, :] + (prim.cost + switch)[:, :, None]
+    clear = (clear_of_slots(planner, first, goal_slot)[:, :, None]
+             & clear_of_slots(planner, second.reshape(n, k * k, 3), goal_slot).view(n, k, k))
+    total = torch.where(clear, total, math.inf)
+    best, index = total.flatten(1).min(-1)
+    index = index // k
+    reachable = best < 0.5 * UNREACHABLE  # also False where every sequence is blocked
+    v = torch.where(reachable, gear[index] * cfg.speed, 0.0)
+    return v, prim.steer[index], best
