@@ -267,18 +267,21 @@ def test_without_the_gear_head_the_student_acts_in_two_dimensions(teacher_path, 
     assert make_eval_env(cfg, checkpoint["obs_norm"], 0.0, 2, seed=0).action_spec.shape == (2, 2)
 
 
-def test_a_student_with_the_clearance_features_reads_them_everywhere(teacher_path, tmp_path):
-    """The rays' clearance joins the student's input in its rollouts, its final-approach
-    states and the evaluator's env alike."""
+def test_a_student_with_the_clearance_features_and_position_reads_them_everywhere(
+        teacher_path, tmp_path):
+    """The rays' clearance and the car's position join the student's input in its rollouts,
+    its final-approach states and the evaluator's env alike."""
     out = tmp_path / "clearance"
     main([teacher_path, "--out", str(out), "--iterations", "1", "--envs", "4", "--steps",
           "5", "--epochs", "1", "--yardstick", "2", "--approach", "8",
-          "--clearance-features"])
+          "--clearance-features", "--position"])
     cfg, checkpoint = load(str(out / "checkpoint_final.pt"))
     assert cfg.agent.clearance_features and cfg.agent.goal_features
-    assert checkpoint["trained_by"].startswith("distilled (gear head, clearance features) from")
+    assert cfg.agent.observe_position
+    assert checkpoint["trained_by"].startswith(
+        "distilled (gear head, clearance features, position) from")
     loc = checkpoint["obs_norm"]["_extra_state"]["loc.-|-.observation_policy"]
-    assert loc.shape[-1] == 23 + 7 + 16
+    assert loc.shape[-1] == 23 + 7 + 16 + 2
     env = make_eval_env(cfg, checkpoint["obs_norm"], 0.9, 2, seed=0)
     env.rollout(3, make_policy(cfg, checkpoint["actor"]))
 

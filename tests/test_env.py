@@ -321,6 +321,25 @@ def test_aided_env_declares_its_aids_outputs_and_passes_the_spec_check(device):
     assert "docking_engaged" not in only_brake.observation_spec.keys()
 
 
+def test_observe_position_emits_the_rear_axle_position_and_changes_nothing_else(device):
+    """The "position" key is the state's rear-axle (x, y) after a reset and after each step,
+    and the episodes (observations, rewards, ends) are the paper env's of the same seed."""
+    paper = ParkingEnv(6, seed=3, device=device)
+    seen = ParkingEnv(6, seed=3, device=device, aids=AidsConfig(observe_position=True))
+    check_env_specs(ParkingEnv(2, seed=0, device=device, aids=seen.aids))
+    assert "position" not in paper.observation_spec.keys()
+    assert "position" in seen.observation_spec.keys()
+    td, ref = seen.reset(), paper.reset()
+    generator = torch.Generator().manual_seed(0)
+    for _ in range(30):
+        assert torch.equal(td["position"], seen.state.pose[:, :2])
+        assert torch.equal(td["observation"], ref["observation"])
+        action = (torch.rand(6, 2, generator=generator) * 2 - 1).to(device)
+        td = seen.step(td.set("action", action))["next"]
+        ref = paper.step(ref.set("action", action))["next"]
+        assert torch.equal(td["reward"], ref["reward"]) and torch.equal(td["done"], ref["done"])
+
+
 def test_set_state_places_rows_and_observes_them():
     env = ParkingEnv(4, seed=0)
     env.reset()

@@ -1,6 +1,7 @@
 """The approach planner (torchpark.aids.planner): exact arcs, the grid's indexing, the free
 cells against a shapely oracle, paths down the cost-to-go that reach the target clear of
-every slot but the goal's, and its settings refused by name."""
+every slot but the goal's (or drive off the one the car stands on), and its settings refused
+by name."""
 
 from __future__ import annotations
 
@@ -65,7 +66,7 @@ def test_free_cells_match_a_shapely_oracle(layout, config):
     gen = torch.Generator().manual_seed(1)
     poses = torch.rand(400, 3, generator=gen) * torch.tensor(
         [layout.width, layout.height, 2 * math.pi]) - torch.tensor([0, 0, math.pi])
-    free = free_cells(poses, layout, config.vehicle, 0.0)  # (S, 400)
+    free, walled = free_cells(poses, layout, config.vehicle, 0.0)  # (S, 400), (400,)
     slots = [polygon(box) for box in layout.slots]
     walls = [polygon(box) for box in layout.walls]
     checked = 0
@@ -77,6 +78,7 @@ def test_free_cells_match_a_shapely_oracle(layout, config):
             continue
         hit = [car.intersects(p) for p in slots]
         clear_of_walls = not any(car.intersects(w) for w in walls)
+        assert bool(walled[c]) == clear_of_walls, c
         for s in range(len(slots)):
             others = any(h for j, h in enumerate(hit) if j != s)
             assert bool(free[s, c]) == (clear_of_walls and not others), (c, s)
@@ -84,31 +86,50 @@ def test_free_cells_match_a_shapely_oracle(layout, config):
     assert checked > 350 and free.any() and not free.all()
 
 
-def test_paths_down_the_cost_to_go_reach_the_target_clear_of_the_other_slots(
+def test_paths_down_the_cost_to_go_reach_the_target_and_keep_off_the_other_slots(
         planner, layout, config):
+    """From a cell clear of the other slots with a clear path (cheaper than one arc onto a
+    slot) the descent stays clear of them, so of their parked cars at any occupancy; from
+    a cell on one it drives off it."""
     grid = planner.grid
     poses = grid_poses(grid, "cpu")
     target = target_cells(poses, layout, COARSE)
-    roomy = free_cells(poses, layout, config.vehicle, COARSE.margin)
+    roomy, _ = free_cells(poses, layout, config.vehicle, COARSE.margin)
+    free, walled = free_cells(poses, layout, config.vehicle, COARSE.clearance)
     assert torch.equal(planner.value == 0, target & roomy)
+    # a path to the target from (almost) every cell off the walls, where the grid has one
+    has_target = (planner.value == 0).any(1)
+    assert has_target.sum() > 30
+    assert planner.value[has_target][:, walled].isfinite().float().mean() > 0.99
+    assert not planner.value[:, ~walled].isfinite().any()
     ends = cell_index(arcs(poses, planner.prim.travel, planner.prim.curvature), grid)
+    mids = cell_index(arcs(poses, planner.prim.travel / 2, planner.prim.curvature), grid)
     gen = torch.Generator().manual_seed(2)
     finite = planner.value.isfinite().nonzero()
-    picks = finite[torch.randint(finite.shape[0], (200,), generator=gen)]
+    picks = finite[torch.randint(finite.shape[0], (300,), generator=gen)]
     cars = [polygon(box) for box in layout.cars]
+    onto_slot = COARSE.slot_cost * planner.prim.cost.min()
+    started_on_slot = 0
     for slot, cell in picks.tolist():
         value = planner.value[slot]
+        clear = bool(free[slot, cell]) and value[cell] < onto_slot
+        started_on_slot += not free[slot, cell]
         for _ in range(1000):
             if value[cell] == 0:
                 break
-            nxt = ends[cell]
+            nxt, mid = ends[cell], mids[cell]
             options = torch.where(nxt >= 0, value[nxt.clamp(min=0)], math.inf)
-            step = options + planner.prim.cost
+            on_slot = ~(free[slot, nxt.clamp(min=0)] & free[slot, mid.clamp(min=0)])
+            scale = torch.where(on_slot, COARSE.slot_cost, torch.where(
+                roomy[slot, nxt.clamp(min=0)], 1.0, COARSE.band_cost))
+            step = options + planner.prim.cost * scale
             assert step.min() <= value[cell] + 1e-4  # the cost falls along the arc taken
             cell = int(nxt[step.argmin()])
             car = polygon(vehicle_boxes(poses[cell], config.vehicle))
-            assert not any(car.intersects(p) for j, p in enumerate(cars) if j != slot)
+            on_car = any(car.intersects(p) for j, p in enumerate(cars) if j != slot)
+            assert not (clear and on_car), (slot, cell)
         assert target[slot, cell], (slot, cell)
+    assert started_on_slot > 10
 
 
 def test_plan_control_drives_at_the_planner_speed_with_its_angles(planner, layout):
@@ -126,6 +147,7 @@ def test_plan_control_drives_at_the_planner_speed_with_its_angles(planner, layou
                                           ("headings", True), ("steers", 1),
                                           ("reverse_cost", -1.0), ("margin", math.inf),
                                           ("clearance", -0.1), ("band_cost", math.nan),
+                                          ("slot_cost", 0.5), ("slot_cost", math.nan),
                                           ("reach_min", 8.0), ("speed", -2.0)])
 def test_bad_planner_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=f"PlannerConfig.{field}"):

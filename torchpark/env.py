@@ -152,6 +152,7 @@ class ParkingEnv(EnvBase):
         self._aid_keys = () if aids is None else (
             (BRAKE_KEYS if aids.brake is not None else ())
             + (DOCKING_KEYS if aids.docking is not None else ()))
+        self._observe_position = aids is not None and aids.observe_position
         self._make_specs()
         self._generator = torch.Generator(device=self.device)
         self._set_seed(seed)
@@ -228,6 +229,8 @@ class ParkingEnv(EnvBase):
             occupancy=Bounded(low=0.0, high=1.0, shape=(n, 1), dtype=torch.float32, device=dev),
             cost=Unbounded(shape=(n, 1), dtype=torch.float32, device=dev),
             **aid_specs,
+            **({"position": Unbounded(shape=(n, 2), dtype=torch.float32, device=dev)}
+               if self._observe_position else {}),
             shape=(n,),
             device=dev,
         )
@@ -439,6 +442,8 @@ class ParkingEnv(EnvBase):
     def _outputs(self, **fields: torch.Tensor) -> TensorDictBase:
         # Copies: a later reset writes the env's tensors in place.
         aid_outputs = {key: getattr(self._aids, key)[:, None].clone() for key in self._aid_keys}
+        if self._observe_position:
+            aid_outputs["position"] = self._sim.pose[:, :2].clone()
         return TensorDict(
             {**fields, "observation": self._observation.clone(),  # the caller's, not our buffer
              "cost": self._cost[:, None].clone(), "occupancy": self._sim.occupancy[:, None].clone(),

@@ -50,6 +50,9 @@ class AgentConfig:
     # Append the gap left along each LIDAR ray past the car's own box, on a log-like scale
     # (torchpark.ClearanceFeatures) to the policy's input.
     clearance_features: bool = False
+    # Append the rear axle's position in the lot (m, the env's "position" key,
+    # torchpark.AidsConfig.observe_position) to the policy's input.
+    observe_position: bool = False
     # The emergency brake (torchpark.BrakeConfig): a step that would collide is not taken.
     emergency_brake: bool = False
     # With the brake, the steering angles it tries (the clear one nearest the commanded)
@@ -286,10 +289,11 @@ def env_configs(cfg: TrainConfig, training: bool) -> tuple[ParkingConfig, AidsCo
     near = NearGoalStarts(probability=aids.near_goal_starts, reach=aids.near_goal_reach,
                           lateral=aids.near_goal_lateral, heading=aids.near_goal_heading) \
         if training and aids.near_goal_starts > 0 else None
-    if agent.action_repeat == 1 and brake is None and docking is None and near is None:
+    if (agent.action_repeat == 1 and brake is None and docking is None and near is None
+            and not agent.observe_position):
         return config, None
     return config, AidsConfig(action_repeat=agent.action_repeat, brake=brake, docking=docking,
-                              near_goal_starts=near)
+                              near_goal_starts=near, observe_position=agent.observe_position)
 
 
 # Where a field lived in checkpoints written before the config had agent and train sections

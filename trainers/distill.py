@@ -5,6 +5,7 @@ distilled into one network that drives the paper's env alone.
                                              [--epochs 32] [--dagger-epochs 16]
                                              [--approach 32768] [--seed 0] [--overwrite]
                                              [--planner] [--clearance-features]
+                                             [--position]
 
 Each iteration runs a driver in lots at every occupancy level, half the starts near the
 goal: the teacher in the first (behaviour cloning), the current student in the later ones
@@ -40,7 +41,10 @@ With ``--planner`` the teacher's policy gives way to the approach planner
 (:mod:`torchpark.aids.planner`): a route that keeps the car off every slot but its goal's,
 so the teacher's approach needs no brake at any occupancy, handing over to the docking law
 once lined up behind the slot (the law's funnel narrowed to the planner's target); the
-checkpoint still gives the law, the brake and the student's sizes.
+checkpoint still gives the law, the brake and the student's sizes. The planner's route
+depends on where in the lot the car is, which the paper's observation (the goal's offset and
+the rays) does not show; ``--position`` hands the student the rear axle's (x, y) in the lot
+(:attr:`torchpark.AidsConfig.observe_position`).
 
 The student reads what the paper's agent can (the paper's observation and its goal-frame
 features, normalised; the observed speed's sign tells it which way the teacher's multi-point
@@ -113,6 +117,7 @@ class DistillConfig:
     |u| ** exponent; the fit is the squared error in u); ``gear_head``: the student picks
     a gear and a (speed, steer) per gear (:func:`imitation_error`); ``clearance_features``:
     the student also reads the gap along each LIDAR ray (torchpark.ClearanceFeatures);
+    ``position``: and its position in the lot (torchpark.AidsConfig.observe_position);
     ``planner``: the teacher's policy is replaced by the approach planner
     (:mod:`torchpark.aids.planner`), the docking law's funnel by the planner's target;
     ``epochs`` /
@@ -135,6 +140,7 @@ class DistillConfig:
     steer_exponent: float = 1.0
     gear_head: bool = True
     clearance_features: bool = False
+    position: bool = False
     planner: bool = False
     release: float | None = None
     yardstick: int = 200
@@ -240,15 +246,16 @@ class Teacher:
 
 def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
     """The student's TrainConfig: the paper's env and agent (no aid, one action per step of
-    dt) with the goal features (and the clearance features, if asked) and the power action
-    map of ``speed_exponent`` / ``steer_exponent``, the teacher's network sizes; training
-    starts near the goal with probability ``near_goal``."""
+    dt) with the goal features (and the clearance features and position, if asked) and the
+    power action map of ``speed_exponent`` / ``steer_exponent``, the teacher's network sizes;
+    training starts near the goal with probability ``near_goal``."""
     tcfg, _ = load(teacher)
     student = TrainConfig(
         env=EnvConfig(num_envs=cfg.envs, max_steps=tcfg.env.max_steps),
         agent=AgentConfig(action_exponents=[cfg.speed_exponent, cfg.steer_exponent],
                           gear_head=cfg.gear_head, goal_features=True,
-                          clearance_features=cfg.clearance_features),
+                          clearance_features=cfg.clearance_features,
+                          observe_position=cfg.position),
         model=tcfg.model, logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
     student.train.near_goal_starts = cfg.near_goal
     return student
@@ -420,7 +427,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     data_in, data_out, data_weight, rows = [], [], [], []
     frames = approach = 0
     parts = [name for name, on in (("gear head", cfg.gear_head),
-                                   ("clearance features", cfg.clearance_features)) if on]
+                                   ("clearance features", cfg.clearance_features),
+                                   ("position", cfg.position)) if on]
     made_of = f" ({', '.join(parts)})" if parts else ""
     source = f"the approach planner with the aids of {teacher_path}" if cfg.planner \
         else f"the hybrid {teacher_path}"

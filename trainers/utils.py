@@ -178,7 +178,7 @@ NORM_DECAY = 0.9999
 def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[Transform]:
     """The transforms between the env and the networks: the optional action maps (the power
     map onto the env's own action bounds, the gear head above it), then from the raw
-    observation (with the optional goal and clearance features and brake flag) to the
+    observation (with the optional goal and clearance features, position and brake flag) to the
     networks' input ``NORMALISED`` (last).
 
     Normalised into its own key: the networks read it, while the raw observation stays in the
@@ -203,6 +203,10 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
         source = ["observation_policy"]
     if agent.clearance_features:
         transforms.append(ClearanceFeatures(base.config, source[0], "observation_policy"))
+        source = ["observation_policy"]
+    if agent.observe_position:
+        transforms.append(CatTensors([*source, "position"], "observation_policy",
+                                     del_keys=False, sort=False))
         source = ["observation_policy"]
     if agent.observe_brake:
         transforms += [DTypeCastTransform(torch.bool, torch.float32, in_keys=["braked"],

@@ -116,12 +116,13 @@ class PlannerConfig:
     """The approach planner (:mod:`torchpark.aids.planner`): a cost-to-go over a grid of
     rear-axle poses ``cell`` m and 2 pi / ``headings`` rad apart, by arcs of ``step`` m at
     ``steers`` steering angles, forwards and reversing (``reverse_cost`` per metre). On the
-    grid the car box, grown by ``clearance`` m, keeps off every slot but the goal's and off
-    the walls, and a path within ``margin`` m of them costs ``band_cost`` times as much per
-    metre. Its target: ``reach_min`` to ``reach`` m back along the slot axis from the goal,
-    within ``lateral`` m and ``heading`` rad of it. It drives at ``speed`` m/s; a gear
-    change costs ``switch_cost`` m; reading the cost between cells, one no clear path
-    leaves counts ``blocked_cost`` m dearer than the others."""
+    grid the car box, grown by ``clearance`` m, keeps off the walls, and a path costs
+    ``slot_cost`` times as much per metre where it is on a slot but the goal's (inf: it
+    never is; finite: a car standing on one drives off it), ``band_cost`` times as much
+    within ``margin`` m of a slot or wall. Its target: ``reach_min`` to ``reach`` m back along
+    the slot axis from the goal, within ``lateral`` m and ``heading`` rad of it. It drives at
+    ``speed`` m/s; a gear change costs ``switch_cost`` m; reading the cost between cells, one
+    no path leaves counts ``blocked_cost`` m dearer than the others."""
 
     cell: float = 0.5  # m
     headings: int = 64
@@ -132,6 +133,7 @@ class PlannerConfig:
     clearance: float = 0.0  # m
     margin: float = 0.2  # m
     band_cost: float = 5.0
+    slot_cost: float = 1000.0
     blocked_cost: float = 10.0  # m
     speed: float = 2.0  # m/s
     reach_min: float = 3.0  # m
@@ -152,6 +154,8 @@ class PlannerConfig:
             value = getattr(self, name)
             require(math.isfinite(value) and value >= 0, f"PlannerConfig.{name}",
                     "finite, >= 0", value)
+        require(self.slot_cost >= 1.0, "PlannerConfig.slot_cost", ">= 1 (inf: never on a slot)",
+                self.slot_cost)
         require(self.reach_min < self.reach, "PlannerConfig.reach_min",
                 f"< reach = {self.reach}", self.reach_min)
 
@@ -166,12 +170,16 @@ class AidsConfig:
     brake: the emergency brake (:mod:`torchpark.aids.brake`). docking: the docking law
     (:mod:`torchpark.aids.docking`), which turns around when the brake stops it.
     near_goal_starts: training starts near the goal (:mod:`torchpark.aids.starts`).
+    observe_position: the env also emits ``"position"``, the rear axle's (x, y) in the lot
+    (m; the paper's observation has only the goal's offset from it), for a policy whose
+    route depends on where in the lot it is (a car localised on a map of the lot).
     """
 
     action_repeat: int = 1
     brake: BrakeConfig | None = None
     docking: DockingConfig | None = None
     near_goal_starts: NearGoalStarts | None = None
+    observe_position: bool = False
 
     def __post_init__(self) -> None:
         check_types(self)

@@ -2,14 +2,15 @@
 of rear-axle poses, and the control that descends it.
 
 The lot's geometry is the same in every env and a parked car lies inside its slot, so a
-path whose car box (grown by a margin) overlaps no slot but the goal's and no wall is clear
-of the parked cars at every occupancy. :func:`cost_to_go` computes, once per lot, the length
-of the shortest such path from every cell of an (x, y, heading) grid to the cells where the
-car is lined up behind each slot (the target: 0 to ``reach`` m back along the slot axis,
-within ``lateral`` m and ``heading`` rad of it), by value iteration over arcs of
-``step`` m at a few steering angles forwards and in reverse (reversing costs
-``reverse_cost`` per metre, and ``band_cost`` times as much within ``margin`` m of a slot
-or wall): a car-like vehicle's multi-point turns come out of it. Every step of dt
+path whose car box overlaps no slot but the goal's and no wall is clear of the parked cars
+at every occupancy. :func:`cost_to_go` computes, once per lot, the cost of the cheapest
+path from every cell of an (x, y, heading) grid to the cells where the car is lined up
+behind each slot (the target: ``reach_min`` to ``reach`` m back along the slot axis, within
+``lateral`` m and ``heading`` rad of it), by value iteration over arcs of ``step`` m at a
+few steering angles forwards and in reverse (reversing costs ``reverse_cost`` per metre,
+``band_cost`` times as much within ``margin`` m of a slot or wall, ``slot_cost`` times as
+much onto another slot; walls are never crossed): a car-like vehicle's multi-point turns
+come out of it, and so does the way out of a slot the car stands in. Every step of dt
 :func:`plan_control` tries every sequence of two such arcs from the car's exact pose, reads
 the cost-to-go at its end between cells (:func:`interpolated_cost`), and drives the first
 arc of the cheapest (a gear change costs ``switch_cost`` m more, so it does not chatter):
@@ -112,20 +113,22 @@ def _grown(boxes: OrientedBoxes, margin: float) -> OrientedBoxes:
 
 
 def free_cells(poses: Tensor, layout: LotLayout, vehicle: VehicleConfig, margin: float,
-               chunk: int = 16384) -> Tensor:
+               chunk: int = 16384) -> tuple[Tensor, Tensor]:
     """Whether the car box at each pose (C, 3), grown by ``margin`` m, is clear of the
-    walls and of every slot but the goal's: bool (S, C), row s for goal slot s."""
+    walls and of every slot but the goal's, bool (S, C) (row s for goal slot s), and whether
+    it is clear of the walls, bool (C,)."""
     slots = oriented_boxes(layout.slots)
     walls = oriented_boxes(layout.walls)
-    rows = []
+    rows, walled = [], []
     for part in poses.split(chunk):
         ego = _grown(vehicle_obb(part, vehicle), margin)
         ego = OrientedBoxes(*(t[:, None] for t in ego))
         in_slot = separation(ego, slots) <= 0.0  # (c, S)
         count = in_slot.sum(-1, keepdim=True)
-        clear = (separation(ego, walls) > 0.0).all(-1, keepdim=True)
-        rows.append(clear & ((count == 0) | ((count == 1) & in_slot)))
-    return torch.cat(rows).T.contiguous()
+        clear = (separation(ego, walls) > 0.0).all(-1)
+        rows.append(clear[:, None] & ((count == 0) | ((count == 1) & in_slot)))
+        walled.append(clear)
+    return torch.cat(rows).T.contiguous(), torch.cat(walled)
 
 
 def target_cells(poses: Tensor, layout: LotLayout, cfg: PlannerConfig) -> Tensor:
@@ -137,31 +140,37 @@ def target_cells(poses: Tensor, layout: LotLayout, cfg: PlannerConfig) -> Tensor
 
 def cost_to_go(layout: LotLayout, vehicle: VehicleConfig, cfg: PlannerConfig,
                max_sweeps: int = 10_000) -> Tensor:
-    """The shortest clear path's cost from every cell to each slot's target, float32
-    (S, count) (inf where none is found): value iteration until no cell changes."""
+    """The cheapest path's cost from every cell to each slot's target, float32 (S, count)
+    (inf where none is found, as from cells on a wall): value iteration until no cell
+    changes."""
     device = layout.slots.device
     grid = grid_of(layout, cfg)
     poses = grid_poses(grid, device)
     prim = primitives(cfg, vehicle, device)
     ends = cell_index(arcs(poses, prim.travel, prim.curvature), grid)  # (C, K)
     mids = cell_index(arcs(poses, prim.travel / 2, prim.curvature), grid)
-    free = free_cells(poses, layout, vehicle, cfg.clearance)  # (S, C)
-    roomy = free_cells(poses, layout, vehicle, cfg.margin)
-    blocked = torch.cat((~free, torch.ones_like(free[:, :1])), 1)  # index -1: off the grid
+    free, walled = free_cells(poses, layout, vehicle, cfg.clearance)  # (S, C), (C,)
+    roomy, _ = free_cells(poses, layout, vehicle, cfg.margin)
+    # index -1: off the grid
+    on_slot = torch.cat((~free, torch.ones_like(free[:, :1])), 1)
+    on_wall = torch.cat((~walled, walled.new_ones(1)))
     inf = torch.tensor(math.inf, device=device)
     value = torch.where(target_cells(poses, layout, cfg) & roomy, 0.0, inf)
     value = torch.cat((value, torch.full_like(value[:, :1], math.inf)), 1)
-    # The cost of each arc from each cell (S, C): inf where it ends or passes off the free
-    # cells, ``band_cost`` times more where it ends within the margin of a slot or wall.
-    arc_cost = [torch.where(blocked[:, ends[:, k]] | blocked[:, mids[:, k]], inf,
-                            torch.where(roomy[:, ends[:, k].clamp(min=0)], prim.cost[k],
-                                        prim.cost[k] * cfg.band_cost))
-                for k in range(ends.shape[1])]
+    # The cost of each arc from each cell (S, C): inf where it ends or passes off the grid
+    # or on a wall, ``slot_cost`` times more where it ends or passes on another slot,
+    # ``band_cost`` times more where it ends within the margin of a slot or wall.
+    arc_cost = []
+    for k in range(ends.shape[1]):
+        end, mid = ends[:, k], mids[:, k]
+        scale = torch.where(on_slot[:, end] | on_slot[:, mid], cfg.slot_cost,
+                            torch.where(roomy[:, end.clamp(min=0)], 1.0, cfg.band_cost))
+        arc_cost.append(torch.where(on_wall[end] | on_wall[mid], inf, prim.cost[k] * scale))
     for _ in range(max_sweeps):
         best = value[:, :-1]
         for k, cost in enumerate(arc_cost):
             best = torch.minimum(best, value[:, ends[:, k]] + cost)
-        best = torch.where(free, best, inf)
+        best = torch.where(walled, best, inf)
         if torch.equal(best, value[:, :-1]):
             break
         value = torch.cat((best, value[:, -1:]), 1)
@@ -189,17 +198,18 @@ def build_planner(layout: LotLayout, vehicle: VehicleConfig, cfg: PlannerConfig)
                    oriented_boxes(layout.walls), vehicle, cfg)
 
 
-def clear_of_slots(planner: Planner, pose: Tensor, goal_slot: Tensor) -> Tensor:
-    """Whether the car box at poses (N, M, 3) is clear of the walls and of every slot but
-    ``goal_slot`` (N,)'s, bool (N, M): exactly, not on the grid."""
+def clear_of_slots(planner: Planner, pose: Tensor, goal_slot: Tensor) -> tuple[Tensor, Tensor]:
+    """Whether the car box at poses (N, M, 3) is clear of every slot but ``goal_slot``
+    (N,)'s, and whether it is clear of the walls, bool (N, M) each: exactly, not on the
+    grid."""
     ego = vehicle_obb(pose, planner.vehicle)
     ego = OrientedBoxes(*(t[..., None] for t in ego))
     other = torch.arange(planner.slots.cx.shape[0], device=pose.device) != goal_slot[:, None]
     in_other = (separation(ego, planner.slots) <= 0.0) & other[:, None, :]
-    return ~in_other.any(-1) & (separation(ego, planner.walls) > 0.0).all(-1)
+    return ~in_other.any(-1), (separation(ego, planner.walls) > 0.0).all(-1)
 
 
-UNREACHABLE = 1000.0  # m: the cost read where no surrounding cell has a clear path
+UNREACHABLE = 1e6  # m: the cost read where no surrounding cell has a path
 
 
 def interpolated_cost(value: Tensor, slot: Tensor, pose: Tensor, grid: Grid,
@@ -208,7 +218,7 @@ def interpolated_cost(value: Tensor, slot: Tensor, pose: Tensor, grid: Grid,
     (N, K, 3), (N, K): linear
     in x, y and heading between the 8 surrounding cells, a cell no clear path leaves (or off
     the grid) counting as the dearest of the others plus ``blocked_cost`` m, so the cost
-    rises towards obstacles; UNREACHABLE m where no surrounding cell has a clear path."""
+    rises towards obstacles; UNREACHABLE m where no surrounding cell has a path."""
     fx = pose[..., 0] / grid.cell
     fy = pose[..., 1] / grid.cell
     fh = (pose[..., 2] + math.pi) * (grid.headings / (2.0 * math.pi))
@@ -236,11 +246,12 @@ def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tenso
     """The planner's control at poses (N, 3) moving at ``speed`` (N,) m/s towards slots
     ``goal_slot`` (N,): (v m/s, delta rad, cost-to-go m), each (N,). Of the sequences of
     two arcs from the exact pose, the one whose end has the least cost
-    (:func:`interpolated_cost`) plus the arcs' own (plus ``switch_cost`` for each change of
-    gear, the first against the way the car moves), among those whose two ends keep the car
-    off every slot but the goal's (:func:`clear_of_slots`), gives the first arc's gear and
-    steering; v is ``speed`` in that gear, 0 where every sequence is blocked or ends among
-    cells no clear path leaves."""
+    (:func:`interpolated_cost`) plus the arcs' own (``slot_cost`` times theirs where an
+    arc's end puts the car on another slot, :func:`clear_of_slots`; plus ``switch_cost``
+    for each change of gear, the first against the way the car moves), among those whose
+    two ends keep the car off the walls, gives the first arc's gear and steering; v is
+    ``speed`` in that gear, 0 where every sequence is blocked or ends among cells no path
+    leaves."""
     prim, cfg = planner.prim, planner.cfg
     gear = torch.sign(prim.travel)
     first = arcs(pose, prim.travel, prim.curvature)  # (N, K, 3)
@@ -251,10 +262,13 @@ def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tenso
     moving = torch.sign(speed)[:, None]
     switch = torch.where((moving != 0) & (moving != gear), cfg.switch_cost, 0.0)  # (N, K)
     again = torch.where(gear[:, None] != gear[None, :], cfg.switch_cost, 0.0)  # (K, K)
-    total = ahead + again + prim.cost[None, :] + (prim.cost + switch)[:, :, None]
-    clear = (clear_of_slots(planner, first, goal_slot)[:, :, None]
-             & clear_of_slots(planner, second.reshape(n, k * k, 3), goal_slot).view(n, k, k))
-    total = torch.where(clear, total, math.inf)
+    off_first, walled_first = clear_of_slots(planner, first, goal_slot)  # (N, K)
+    off_second, walled_second = (c.view(n, k, k) for c in clear_of_slots(
+        planner, second.reshape(n, k * k, 3), goal_slot))
+    own_first = prim.cost * torch.where(off_first, 1.0, cfg.slot_cost)  # (N, K)
+    own_second = prim.cost * torch.where(off_second, 1.0, cfg.slot_cost)  # (N, K, K)
+    total = ahead + again + own_second + (own_first + switch)[:, :, None]
+    total = torch.where(walled_first[:, :, None] & walled_second, total, math.inf)
     best, index = total.flatten(1).min(-1)
     index = index // k
     reachable = best < 0.5 * UNREACHABLE  # also False where every sequence is blocked
