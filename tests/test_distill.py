@@ -7,6 +7,7 @@ refused by name."""
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 
 import pytest
@@ -22,6 +23,7 @@ from torchpark.aids.features import GoalFrameFeatures
 from torchpark.aids.planner import plan_control
 from trainers.config import env_configs, load_config
 from trainers.distill import (
+    BEST_BY,
     DistillConfig,
     Teacher,
     approach_poses,
@@ -156,6 +158,20 @@ def test_the_planner_teacher_drives_the_planner_then_the_law_in_its_target(teach
                                       paper.config.vehicle)
     free = ~teacher.intervened
     assert torch.equal(label[free], torch.stack((law_v, law_delta), -1)[free])
+    # no memory the student cannot see: whatever the aids' state says (the law engaged or
+    # not, reversing or not), the label is that of the pose and the speed
+    for engaged in (False, True):
+        for reverses in (False, True):
+            teacher.state = teacher.state._replace(
+                docking_engaged=torch.full((16,), engaged),
+                docking_reverses=torch.full((16,), reverses),
+                braked=torch.zeros(16, dtype=torch.bool))
+            assert torch.equal(teacher.label(obs), label)
+    reversing = paper.set_state(sim._replace(pose=back, speed=torch.full((16,), -0.5)))
+    assert (teacher.label(reversing["observation"])[free, 0] < 0).all()
+    teacher.forget(torch.ones(16, dtype=torch.bool))
+    teacher.label(paper.set_state(sim)["observation"])
+    assert not teacher.state.docking_engaged.any()  # back at the start: the planner drives
 
 
 def test_the_planner_needs_the_teachers_law(tmp_path):
@@ -250,6 +266,12 @@ def test_a_run_writes_a_policy_alone_the_evaluator_reads(teacher_path, tmp_path,
     env.rollout(3, make_policy(cfg, checkpoint["actor"]))
     rows = (out / "dagger.csv").read_text().splitlines()
     assert len(rows) == 3 and rows[0].startswith("iteration,frames,approach_states")
+    # checkpoint_best.pt: the iteration that scored best on the checks (the later on a tie)
+    checks = list(csv.DictReader(rows))
+    scores = [sum(float(r[key]) for key in BEST_BY) for r in checks]
+    best = max(i for i, s in enumerate(scores) if s == max(scores))
+    _, best_checkpoint = load(str(out / "checkpoint_best.pt"))
+    assert f": {best + 1} iteration(s)" in best_checkpoint["trained_by"]
     # the final approach is labelled in the first iteration only
     assert 0.8 * 6 * 16 <= int(rows[1].split(",")[2]) == int(rows[2].split(",")[2]) <= 6 * 16
     with pytest.raises(SystemExit):

@@ -41,7 +41,11 @@ With ``--planner`` the teacher's policy gives way to the approach planner
 (:mod:`torchpark.aids.planner`): a route that keeps the car off every slot but its goal's,
 so the teacher's approach needs no brake at any occupancy, handing over to the docking law
 once lined up behind the slot (the law's funnel narrowed to the planner's target); the
-checkpoint still gives the law, the brake and the student's sizes. The planner's route
+checkpoint still gives the law, the brake and the student's sizes. Its labels are a
+function of what the student sees: the law drives wherever the car is in its funnel (not
+from the moment it entered to the episode's end) and in the gear the car moves in (not the
+pass it began), so a student off the teacher's path is not told to reverse where the same
+pose, moving forwards, is told to go on. The planner's route
 depends on where in the lot the car is, which the paper's observation (the goal's offset and
 the rays) does not show; ``--position`` hands the student the rear axle's (x, y) in the lot
 (:attr:`torchpark.AidsConfig.observe_position`).
@@ -51,7 +55,10 @@ features, normalised; the observed speed's sign tells it which way the teacher's
 turn was going) and acts at every step of dt: no brake, no law, no held actions.
 
 Written into ``--out``: ``checkpoint_final.pt`` (a torchpark checkpoint:
-``python -m trainers.evaluate DIR/checkpoint_final.pt``) and ``dagger.csv``, per iteration
+``python -m trainers.evaluate DIR/checkpoint_final.pt``), ``checkpoint_best.pt`` (the
+iteration that scored best on the checks from uniform starts, :data:`BEST_BY`; their lots
+are not the evaluator's: DAgger's guarantee is for the best policy of the sequence, not the
+last) and ``dagger.csv``, per iteration
 the student's success at the three thresholds on the yardstick (starts 0-6 m behind the
 goal, within 1 m and 0.6 rad of the slot axis, empty lot) and from uniform starts at 0 % and
 90 % occupancy.
@@ -82,7 +89,7 @@ from torchpark.aids.actions import (
 )
 from torchpark.aids.brake import steer_angles
 from torchpark.aids.config import BrakeConfig, DockingConfig, PlannerConfig
-from torchpark.aids.docking import error_from_goal
+from torchpark.aids.docking import error_from_goal, in_funnel
 from torchpark.aids.planner import build_planner, plan_control
 from torchpark.aids.starts import near_starts_free
 from torchpark.aids.step import AidedState, AidState, aided_control
@@ -225,6 +232,12 @@ class Teacher:
             self.state = self.state._replace(docking_engaged=self.state.docking_engaged & near,
                                              docking_reverses=self.state.docking_reverses & near)
         if self.planner is not None:
+            # No memory the student cannot see: the law drives where the car is in its
+            # funnel, in the gear the car moves in (its reversing pass ends at the funnel's
+            # far end, where the planner brings the car back in).
+            funnel = in_funnel(error_from_goal(sim.pose, sim.goal), law)
+            self.state = self.state._replace(docking_engaged=funnel,
+                                             docking_reverses=funnel & (sim.speed < 0))
             action = torch.stack(plan_control(self.planner, sim.pose, sim.speed,
                                               sim.goal_slot)[:2], -1)
         else:
@@ -381,6 +394,16 @@ def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.
     return torch.stack(losses).mean().item()
 
 
+# The checks that pick checkpoint_best.pt: the paper's test from uniform starts, empty and
+# at 90 % (their sum).
+BEST_BY = ("uniform_0_0.0004", "uniform_90_0.0004")
+
+
+def score(row: dict) -> float:
+    """A DAgger iteration's score: the sum of its BEST_BY checks."""
+    return sum(row[key] for key in BEST_BY)
+
+
 def check(actor, scfg: TrainConfig, obs_norm: dict, episodes: int, seed: int
           ) -> dict[str, float]:
     """The student on the yardstick (near-goal starts, empty lot) and from uniform starts at
@@ -468,14 +491,16 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
             writer = csv.DictWriter(f, fieldnames=list(row))
             writer.writeheader()
             writer.writerows(rows)
-        path = out / "checkpoint_final.pt"
-        torch.save({"config": dataclasses.asdict(scfg), "frames": frames,
-                    "actor": actor.state_dict(), "obs_norm": norm.state_dict(),
-                    "trained_by": f"distilled{made_of} from {source}: "
-                                  f"{iteration + 1} iteration(s) (DAgger after the first), "
-                                  f"{frames:,} labelled frames and {approach:,} "
-                                  f"final-approach states"}, path)
-    return path
+        checkpoint = {"config": dataclasses.asdict(scfg), "frames": frames,
+                      "actor": actor.state_dict(), "obs_norm": norm.state_dict(),
+                      "trained_by": f"distilled{made_of} from {source}: "
+                                    f"{iteration + 1} iteration(s) (DAgger after the first), "
+                                    f"{frames:,} labelled frames and {approach:,} "
+                                    f"final-approach states"}
+        torch.save(checkpoint, out / "checkpoint_final.pt")
+        if score(row) >= max(map(score, rows)):
+            torch.save(checkpoint, out / "checkpoint_best.pt")
+    return out / "checkpoint_final.pt"
 
 
 def main(argv: list[str] | None = None) -> None:
