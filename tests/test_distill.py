@@ -279,6 +279,16 @@ def test_a_run_writes_a_policy_alone_the_evaluator_reads(teacher_path, tmp_path,
     assert "--overwrite" in capsys.readouterr().err
 
 
+def test_refresh_approach_labels_the_final_approach_in_every_iteration(teacher_path, tmp_path):
+    out = tmp_path / "refresh"
+    main([teacher_path, "--out", str(out), "--iterations", "2", "--envs", "4", "--steps",
+          "5", "--epochs", "1", "--dagger-epochs", "1", "--yardstick", "2", "--approach", "8",
+          "--refresh-approach"])
+    rows = list(csv.DictReader((out / "dagger.csv").read_text().splitlines()))
+    first, second = (int(r["approach_states"]) for r in rows)
+    assert 0 < first < second
+
+
 def test_without_the_gear_head_the_student_acts_in_two_dimensions(teacher_path, tmp_path):
     out = tmp_path / "plain"
     main([teacher_path, "--out", str(out), "--iterations", "2", "--envs", "4", "--steps",

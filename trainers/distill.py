@@ -116,7 +116,8 @@ class DistillConfig:
     ``lateral`` m of the slot axis), and the teacher's policy labels there (None: the law
     keeps the wheel to the episode's end, as in the hybrid); ``yardstick``: episodes per
     check after each iteration; ``approach``: final-approach states labelled per level in
-    the first iteration (0: none), drawn up to ``approach_reach`` m behind the goal and
+    the first iteration (0: none; in every iteration with ``refresh_approach``, so they keep
+    their share of the growing data), drawn up to ``approach_reach`` m behind the goal and
     weighted ``approach_weight`` times a rollout state in the fit; ``brake_weight``: the
     weight of a rollout state where the teacher's brake stopped or steered its label;
     ``speed_exponent`` /
@@ -142,6 +143,7 @@ class DistillConfig:
     approach: int = 32768
     approach_reach: float = 2.0
     approach_weight: float = 1.0
+    refresh_approach: bool = False
     brake_weight: float = 1.0
     speed_exponent: float = 3.0
     steer_exponent: float = 1.0
@@ -466,7 +468,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
             frames += x.shape[0]
         if iteration == 0:
             norm.freeze()  # the teacher's states set the student's input scale
-        for level in PAPER_LEVELS if cfg.approach and iteration == 0 else ():
+        label_approach = cfg.approach and (iteration == 0 or cfg.refresh_approach)
+        for level in PAPER_LEVELS if label_approach else ():
             base.occupancy = level
             x, y = approach_states(env, features, teacher, cfg.approach, cfg.approach_reach,
                                    generator)
