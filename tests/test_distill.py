@@ -277,6 +277,10 @@ def test_a_run_writes_a_policy_alone_the_evaluator_reads(teacher_path, tmp_path,
     with pytest.raises(SystemExit):
         main(args)  # the checkpoint exists: refused without --overwrite
     assert "--overwrite" in capsys.readouterr().err
+    (out / "checkpoint_final.pt").unlink()
+    with pytest.raises(SystemExit):
+        main(args)  # any of its outputs (here the best checkpoint and the log) is kept
+    assert "checkpoint_best.pt exists (2 of the outputs do)" in capsys.readouterr().err
 
 
 def test_refresh_approach_labels_the_final_approach_in_every_iteration(teacher_path, tmp_path):

@@ -396,6 +396,8 @@ def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.
     return torch.stack(losses).mean().item()
 
 
+# What a run writes into --out (none is replaced without --overwrite).
+OUTPUTS = ("checkpoint_final.pt", "checkpoint_best.pt", "dagger.csv")
 # The checks that pick checkpoint_best.pt: the paper's test from uniform starts, empty and
 # at 90 % (their sum).
 BEST_BY = ("uniform_0_0.0004", "uniform_90_0.0004")
@@ -513,7 +515,7 @@ def main(argv: list[str] | None = None) -> None:
                                         "results/fast/checkpoint_final.pt)")
     parser.add_argument("--out", required=True, help="directory of the student's files")
     parser.add_argument("--overwrite", action="store_true",
-                        help="replace a checkpoint already in --out (refused by default)")
+                        help="replace the outputs already in --out (refused by default)")
     for field in dataclasses.fields(DistillConfig):
         flag = f"--{field.name.replace('_', '-')}"
         if isinstance(field.default, bool):  # --gear-head / --no-gear-head
@@ -524,9 +526,10 @@ def main(argv: list[str] | None = None) -> None:
         parser.add_argument(flag, type=kind, default=field.default)
     args = parser.parse_args(argv)
     out = Path(args.out)
-    if (out / "checkpoint_final.pt").exists() and not args.overwrite:
-        parser.error(f"{out / 'checkpoint_final.pt'} exists: pass another --out, or "
-                     f"--overwrite to replace it")
+    existing = [name for name in OUTPUTS if (out / name).exists()]
+    if existing and not args.overwrite:
+        parser.error(f"{out / existing[0]} exists ({len(existing)} of the outputs do): pass "
+                     f"another --out, or --overwrite to replace them")
     try:
         cfg = DistillConfig(**{f.name: getattr(args, f.name)
                                for f in dataclasses.fields(DistillConfig)})

@@ -27,6 +27,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from torchpark.aids.brake import fence
 from torchpark.aids.config import PlannerConfig
 from torchpark.aids.docking import error_from_goal
 from torchpark.config import VehicleConfig
@@ -36,7 +37,7 @@ from torchpark.sim.vehicle import vehicle_obb
 
 
 class Grid(NamedTuple):
-    """The pose grid: ``cells`` (X, Y) positions ``cell`` m apart from (0, 0) and
+    """The pose grid: ``size_x`` x ``size_y`` positions ``cell`` m apart from (0, 0) and
     ``headings`` angles 2 pi / headings apart from -pi; flat index ((h X) + x) Y + y."""
 
     cell: float
@@ -64,11 +65,15 @@ def grid_poses(grid: Grid, device: torch.device | str) -> Tensor:
     return torch.stack((x.float() * grid.cell, y.float() * grid.cell, psi), -1).reshape(-1, 3)
 
 
+def _grid_coordinates(pose: Tensor, grid: Grid) -> tuple[Tensor, Tensor, Tensor]:
+    """Poses [..., 3] in cell units along x, y and heading (fractional), each [...]."""
+    return (pose[..., 0] / grid.cell, pose[..., 1] / grid.cell,
+            (pose[..., 2] + math.pi) * (grid.headings / (2.0 * math.pi)))
+
+
 def cell_index(pose: Tensor, grid: Grid) -> Tensor:
     """The flat index of the nearest cell to poses [..., 3], int64 [...]; -1 off the grid."""
-    ix = torch.round(pose[..., 0] / grid.cell).long()
-    iy = torch.round(pose[..., 1] / grid.cell).long()
-    ih = torch.round((pose[..., 2] + math.pi) * (grid.headings / (2.0 * math.pi))).long()
+    ix, iy, ih = (torch.round(c).long() for c in _grid_coordinates(pose, grid))
     ih = ih.remainder(grid.headings)
     inside = (ix >= 0) & (ix < grid.size_x) & (iy >= 0) & (iy < grid.size_y)
     return torch.where(inside, (ih * grid.size_x + ix) * grid.size_y + iy, -1)
@@ -107,11 +112,6 @@ def primitives(cfg: PlannerConfig, vehicle: VehicleConfig, device: torch.device 
     return Primitives(gear * cfg.step, steer, torch.tan(steer) / vehicle.wheelbase, cost)
 
 
-def _grown(boxes: OrientedBoxes, margin: float) -> OrientedBoxes:
-    return boxes._replace(half_length=boxes.half_length + margin,
-                          half_width=boxes.half_width + margin)
-
-
 def free_cells(poses: Tensor, layout: LotLayout, vehicle: VehicleConfig, margin: float,
                chunk: int = 16384) -> tuple[Tensor, Tensor]:
     """Whether the car box at each pose (C, 3), grown by ``margin`` m, is clear of the
@@ -121,7 +121,7 @@ def free_cells(poses: Tensor, layout: LotLayout, vehicle: VehicleConfig, margin:
     walls = oriented_boxes(layout.walls)
     rows, walled = [], []
     for part in poses.split(chunk):
-        ego = _grown(vehicle_obb(part, vehicle), margin)
+        ego = fence(part, vehicle, margin)
         ego = OrientedBoxes(*(t[:, None] for t in ego))
         in_slot = separation(ego, slots) <= 0.0  # (c, S)
         count = in_slot.sum(-1, keepdim=True)
@@ -215,13 +215,11 @@ UNREACHABLE = 1e6  # m: the cost read where no surrounding cell has a path
 def interpolated_cost(value: Tensor, slot: Tensor, pose: Tensor, grid: Grid,
                       blocked_cost: float) -> Tensor:
     """The cost-to-go tables ``value`` (S, count) of slots ``slot`` (N,) read at poses
-    (N, K, 3), (N, K): linear
-    in x, y and heading between the 8 surrounding cells, a cell no clear path leaves (or off
-    the grid) counting as the dearest of the others plus ``blocked_cost`` m, so the cost
-    rises towards obstacles; UNREACHABLE m where no surrounding cell has a path."""
-    fx = pose[..., 0] / grid.cell
-    fy = pose[..., 1] / grid.cell
-    fh = (pose[..., 2] + math.pi) * (grid.headings / (2.0 * math.pi))
+    (N, K, 3), (N, K): linear in x, y and heading between the 8 surrounding cells, a cell no
+    path leaves (or off the grid) counting as the dearest of the others plus
+    ``blocked_cost`` m, so the cost rises towards obstacles; UNREACHABLE m where no
+    surrounding cell has a path."""
+    fx, fy, fh = _grid_coordinates(pose, grid)
     x0, y0, h0 = fx.floor(), fy.floor(), fh.floor()
     wx, wy, wh = fx - x0, fy - y0, fh - h0
     costs, weights = [], []
