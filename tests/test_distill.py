@@ -28,13 +28,22 @@ from trainers.distill import (
     Teacher,
     approach_poses,
     approach_states,
+    fit,
+    goal_cost,
     imitation_error,
     main,
     student_config,
 )
 from trainers.evaluate import composition, load
 from trainers.ppo import _INIT_FREE, _INIT_SECTIONS, config_differences
-from trainers.utils import make_base_env, make_eval_env, make_policy, make_ppo_models, policy_input
+from trainers.utils import (
+    build_models,
+    make_base_env,
+    make_eval_env,
+    make_policy,
+    make_ppo_models,
+    policy_input,
+)
 
 HYBRID = ["agent.emergency_brake=true", "agent.steer_clear=5", "agent.docking=true",
           "agent.observe_brake=true", "agent.goal_features=true",
@@ -241,7 +250,10 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("brake_weight", -1.0),
                                           ("speed_exponent", 0.5),
                                           ("steer_exponent", float("inf")),
-                                          ("dagger_epochs", 0), ("gear_head", 1)])
+                                          ("dagger_epochs", 0), ("gear_head", 1),
+                                          ("goal_weight", 0.0), ("lr_decay", 1),
+                                          ("settle", -0.01), ("settle", float("nan")),
+                                          ("planner_margin", -1.0)])
 def test_bad_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=rf"DistillConfig\.{field}"):
         DistillConfig(**{field: value})
@@ -366,3 +378,53 @@ def test_the_alone_preset_starts_from_the_student_of_a_fast_teacher(tmp_path):
     for section in _INIT_SECTIONS:
         assert config_differences(student, load_config("alone"), section, _INIT_FREE) == ""
     assert config_differences(student, fast, "agent", _INIT_FREE) != ""
+
+
+def test_goal_cost_is_the_envs_cost_of_the_state_a_student_input_shows():
+    paper = ParkingEnv(32, seed=4, config=ParkingConfig(occupancy=0.4))
+    env = TransformedEnv(paper, GoalFrameFeatures())
+    td = env.rollout(5, break_when_any_done=False)
+    torch.testing.assert_close(goal_cost(td["next", "observation_policy"].reshape(-1, 30)),
+                               td["next", "cost"].reshape(-1), rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("lr_decay", [False, True])
+def test_each_fit_starts_at_lr_and_decays_to_zero_if_asked(teacher_path, lr_decay):
+    cfg = DistillConfig(lr=1e-3, lr_decay=lr_decay, batch_size=16)
+    scfg = student_config(teacher_path, cfg)
+    base = make_base_env(scfg, training=True, num_envs=4, seed=0)
+    inputs = policy_input(scfg, base)
+    TransformedEnv(base, Compose(*inputs)).rollout(3)
+    norm = inputs[-1]
+    norm.freeze()
+    actor, _ = build_models(scfg)
+    optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
+    generator = torch.Generator().manual_seed(0)
+    x, y = torch.randn(64, 30, generator=generator), torch.rand(64, 2, generator=generator)
+    for _ in range(2):  # the second fit starts from lr again: it moves the weights
+        before = [p.clone() for p in actor.parameters()]
+        fit(actor, norm.to_observation_norm(), x, y, torch.ones(64), 3, cfg, optim, generator)
+        assert any(not torch.equal(a, b) for a, b in zip(before, actor.parameters(), strict=True))
+        lr = optim.param_groups[0]["lr"]
+        assert lr == (pytest.approx(0.0, abs=1e-12) if lr_decay else cfg.lr)
+
+
+def test_with_settle_the_planner_teacher_creeps_back_from_just_past_the_goal(teacher_path):
+    plan = PlannerConfig(cell=1.0, headings=32, step=1.5)  # coarse: builds in seconds
+    paper = ParkingEnv(16, seed=3, config=ParkingConfig(occupancy=0.9))
+    paper.reset()
+    sim = paper.state
+    goal = sim.goal
+    past = torch.stack((goal[:, 0] + 2e-3 * torch.cos(goal[:, 2]),
+                        goal[:, 1] + 2e-3 * torch.sin(goal[:, 2]), goal[:, 2]), -1)
+    obs = paper.set_state(sim._replace(pose=past, speed=torch.full((16,), 1e-3)))["observation"]
+    speeds = {}
+    for settle in (0.0, 0.05):
+        teacher = Teacher(teacher_path, TransformedEnv(paper), planner=plan, settle=settle)
+        speeds[settle] = teacher.label(obs)[:, 0]
+    law = teacher.aids.docking
+    creep = max(law.speed_gain * 2e-3, law.min_speed)
+    torch.testing.assert_close(speeds[0.05], torch.full((16,), -creep), rtol=1e-3, atol=1e-6)
+    # without: a whole pass back, fast (where the coarse planner finds a way out)
+    moving = speeds[0.0] != 0
+    assert moving.sum() >= 8 and (speeds[0.0][moving] < -100 * creep).all()

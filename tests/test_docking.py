@@ -186,10 +186,34 @@ def test_law_meets_the_papers_success_test_from_the_funnel(box, brake, steer_cle
     assert run.success.float().mean() > floor and not run.collision.any()
 
 
+def test_settled_near_the_goal_the_law_creeps_to_it_from_either_side():
+    vehicle = VehicleConfig()
+    remaining = torch.tensor([-0.03, -0.002, 0.002, 0.03, -0.2, -0.002, 0.002])
+    lateral = torch.tensor([5e-4, 5e-4, 5e-4, 5e-4, 5e-4, 0.3, 5e-4])  # the 6th: unsettled
+    error = GoalError(remaining, lateral, torch.full_like(remaining, 1e-3))
+    reversing = torch.tensor([True, False, True, False, True, True, False])
+    law = DockingConfig(settle=0.05)
+    v, delta = docking_action(error, reversing, law, vehicle)
+    creep = (law.speed_gain * remaining.abs()).clamp(min=law.min_speed)
+    # within 5 cm, settled: towards the goal at the creep, whatever the pass
+    torch.testing.assert_close(v[:4], remaining.sign()[:4] * creep[:4])
+    # farther past, or unsettled: the pass it is in, at the law's speed
+    assert v[4].item() == v[5].item() == -law.max_speed
+    # the steering of the direction it creeps in: the same as the law's for that pass
+    _, back = docking_action(error, torch.ones_like(reversing), law, vehicle)
+    _, ahead = docking_action(error, torch.zeros_like(reversing), law, vehicle)
+    torch.testing.assert_close(delta[:4], torch.where(remaining[:4] < 0, back[:4], ahead[:4]))
+    # settle 0 (the default): past the goal, a whole pass back
+    v0, _ = docking_action(error, reversing, DockingConfig(), vehicle)
+    assert (v0[reversing] == -law.max_speed).all()
+
+
 @pytest.mark.parametrize("field, value", [("reach", 0.0), ("lateral", -1.0),
                                           ("gain", float("nan")), ("max_speed", math.inf),
                                           ("min_speed", 2.0), ("abort", 11.0),
-                                          ("run_in", -1.0), ("forward_gain", 0.0)])
+                                          ("run_in", -1.0), ("forward_gain", 0.0),
+                                          ("settle", -0.01), ("settle", 0.6),
+                                          ("settle", float("nan"))])
 def test_bad_docking_config_is_rejected_by_name(field, value):
     with pytest.raises(ValueError, match=rf"DockingConfig\.{field}"):
         DockingConfig(**{field: value})

@@ -89,14 +89,16 @@ from torchpark.aids.actions import (
 )
 from torchpark.aids.brake import steer_angles
 from torchpark.aids.config import BrakeConfig, DockingConfig, PlannerConfig
-from torchpark.aids.docking import error_from_goal, in_funnel
+from torchpark.aids.docking import error_from_goal, in_creep, in_funnel
 from torchpark.aids.planner import build_planner, plan_control
 from torchpark.aids.starts import near_starts_free
 from torchpark.aids.step import AidedState, AidState, aided_control
-from torchpark.config import check_types, positive, require
+from torchpark.config import RewardConfig, check_types, positive, require
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.runner import run_episodes
 from torchpark.sim.geometry import wrap_angle
+from torchpark.sim.observation import NAV_DIM
+from torchpark.sim.reward import parking_cost
 from trainers.config import AgentConfig, EnvConfig, LoggerConfig, TrainConfig, env_configs
 from trainers.evaluate import load
 from trainers.utils import build_models, make_base_env, make_policy, policy_input
@@ -128,6 +130,12 @@ class DistillConfig:
     ``position``: and its position in the lot (torchpark.AidsConfig.observe_position);
     ``planner``: the teacher's policy is replaced by the approach planner
     (:mod:`torchpark.aids.planner`), the docking law's funnel by the planner's target;
+    ``settle``: the teacher's law creeps back to the goal from up to ``settle`` m past it
+    (:attr:`~torchpark.aids.config.DockingConfig.settle`), where it would reverse a whole
+    pass; ``planner_margin``: the planner's ``margin`` (None: PlannerConfig's), the band along
+    every slot and wall its routes avoid;
+    ``goal_weight``: the weight of a state inside the 1-cm test (:data:`GOAL_COST`), on top of
+    its others; ``lr_decay``: each fit's learning rate falls from ``lr`` to 0 along a cosine;
     ``epochs`` /
     ``dagger_epochs``: passes over the data after the first / each later iteration."""
 
@@ -145,12 +153,16 @@ class DistillConfig:
     approach_weight: float = 1.0
     refresh_approach: bool = False
     brake_weight: float = 1.0
+    goal_weight: float = 1.0
+    lr_decay: bool = False
     speed_exponent: float = 3.0
     steer_exponent: float = 1.0
     gear_head: bool = True
     clearance_features: bool = False
     position: bool = False
     planner: bool = False
+    planner_margin: float | None = None
+    settle: float = 0.0
     release: float | None = None
     yardstick: int = 200
     seed: int = 0
@@ -165,7 +177,7 @@ class DistillConfig:
                     value)
         require(0 <= self.approach <= 1 << 20, "DistillConfig.approach",
                 "an int in [0, 1048576]", self.approach)
-        for name in ("lr", "approach_reach", "approach_weight", "brake_weight"):
+        for name in ("lr", "approach_reach", "approach_weight", "brake_weight", "goal_weight"):
             positive(f"DistillConfig.{name}", getattr(self, name))
         for name in ("speed_exponent", "steer_exponent"):
             value = getattr(self, name)
@@ -173,8 +185,12 @@ class DistillConfig:
         require(0.0 <= self.near_goal <= 1.0, "DistillConfig.near_goal", "in [0, 1]",
                 self.near_goal)
         require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
+        require(0.0 <= self.settle < float("inf"), "DistillConfig.settle", "finite, >= 0 (m)",
+                self.settle)
         if self.release is not None:
             positive("DistillConfig.release", self.release)
+        require(self.planner_margin is None or 0.0 <= self.planner_margin < float("inf"),
+                "DistillConfig.planner_margin", "None or finite, >= 0 (m)", self.planner_margin)
 
 
 class Teacher:
@@ -185,12 +201,18 @@ class Teacher:
     brake's flag) as if it had; ``forget(rows)`` clears it where episodes ended."""
 
     def __init__(self, path: str, env: TransformedEnv, release: float | None = None,
-                 planner: PlannerConfig | None = None) -> None:
+                 planner: PlannerConfig | None = None, settle: float = 0.0) -> None:
         cfg, checkpoint = load(path)
         _, self.aids = env_configs(cfg, training=False)
         if self.aids is None or (self.aids.docking is None and self.aids.brake is None):
             raise ValueError(f"teacher {path!r} has neither the brake nor the docking law: "
                              f"distil a hybrid agent")
+        if settle:
+            if self.aids.docking is None:
+                raise ValueError(f"teacher {path!r} has no docking law to settle with: "
+                                 f"drop --settle")
+            self.aids = dataclasses.replace(self.aids, docking=dataclasses.replace(
+                self.aids.docking, settle=settle))
         self.actor = make_policy(cfg, checkpoint["actor"])
         self.base = env.base_env
         # With the planner, it drives where the checkpoint's policy did, up to its target,
@@ -237,7 +259,8 @@ class Teacher:
             # No memory the student cannot see: the law drives where the car is in its
             # funnel, in the gear the car moves in (its reversing pass ends at the funnel's
             # far end, where the planner brings the car back in).
-            funnel = in_funnel(error_from_goal(sim.pose, sim.goal), law)
+            error = error_from_goal(sim.pose, sim.goal)
+            funnel = in_funnel(error, law) | in_creep(error, law)
             self.state = self.state._replace(docking_engaged=funnel,
                                              docking_reverses=funnel & (sim.speed < 0))
             action = torch.stack(plan_control(self.planner, sim.pose, sim.speed,
@@ -257,6 +280,15 @@ class Teacher:
 
     def forget(self, rows: torch.Tensor) -> None:
         self.state = AidState(*(torch.where(rows, torch.zeros_like(f), f) for f in self.state))
+
+
+def planner_config(cfg: DistillConfig) -> PlannerConfig | None:
+    """The teacher's planner (None without ``cfg.planner``)."""
+    if not cfg.planner:
+        return None
+    if cfg.planner_margin is None:
+        return PlannerConfig()
+    return PlannerConfig(margin=cfg.planner_margin)
 
 
 def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
@@ -375,13 +407,31 @@ def imitation_error(u: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
             + (speed - label[:, 0].abs()).pow(2) + (steer - label[:, 1]).pow(2))
 
 
+# The cost below which a state is near the goal for DistillConfig.goal_weight: the 1-cm test.
+GOAL_COST = 4e-3
+
+
+def goal_cost(inputs: torch.Tensor) -> torch.Tensor:
+    """The paper's cost C (B,) of the states whose student inputs (B, D) begin with the
+    paper's observation."""
+    dx, dy, cos_psi, sin_psi, v, cos_alpha, sin_alpha = inputs[:, :NAV_DIM].unbind(-1)
+    return parking_cost(dx, dy, torch.atan2(sin_psi, cos_psi),
+                        torch.atan2(sin_alpha, cos_alpha), v, RewardConfig())
+
+
 def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor,
         epochs: int, cfg: DistillConfig, optim: torch.optim.Optimizer,
         generator: torch.Generator) -> float:
     """``epochs`` passes of minibatch regression of the student's deterministic action (tanh
     of its loc) on the labels (N, 2) (:func:`imitation_error`, weighted per state by
-    ``weights`` (N,)); returns the last epoch's mean loss."""
+    ``weights`` (N,)), the learning rate from ``cfg.lr`` (to 0 along a cosine with
+    ``cfg.lr_decay``); returns the last epoch's mean loss."""
     net = actor.module[0]
+    for group in optim.param_groups:
+        group["lr"] = cfg.lr
+    batches = epochs * -(-inputs.shape[0] // cfg.batch_size)
+    schedule = (torch.optim.lr_scheduler.CosineAnnealingLR(optim, batches) if cfg.lr_decay
+                else None)
     losses = []
     for _ in range(epochs):
         losses = []
@@ -392,6 +442,8 @@ def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.
             optim.zero_grad()
             loss.backward()
             optim.step()
+            if schedule is not None:
+                schedule.step()
             losses.append(loss.detach())
     return torch.stack(losses).mean().item()
 
@@ -443,7 +495,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     # outside the env to the final-approach states.
     features = Compose(*[t.clone() for t in inputs[:-1]
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
-    teacher = Teacher(teacher_path, env, cfg.release, PlannerConfig() if cfg.planner else None)
+    teacher = Teacher(teacher_path, env, cfg.release, planner_config(cfg), cfg.settle)
     if cfg.approach and teacher.aids.docking is None:
         raise ValueError(f"teacher {teacher_path!r} has no docking law to label the final "
                          f"approach with: pass --approach 0")
@@ -483,10 +535,12 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
             data_out.append(y)
             data_weight.append(weight)
         x, y, w = torch.cat(data_in), torch.cat(data_out), torch.cat(data_weight)
+        near = goal_cost(x) < GOAL_COST
+        w = torch.where(near, cfg.goal_weight * w, w)
         epochs = cfg.epochs if iteration == 0 else cfg.dagger_epochs
         loss = fit(actor, norm.to_observation_norm(), x, y, w, epochs, cfg, optim, generator)
         row = {"iteration": iteration, "frames": frames, "approach_states": approach,
-               "samples": x.shape[0], "loss": loss,
+               "samples": x.shape[0], "goal_states": int(near.sum()), "loss": loss,
                **check(actor, scfg, norm.state_dict(), cfg.yardstick, cfg.seed + 1000),
                "wall_s": time.perf_counter() - started}
         rows.append(row)

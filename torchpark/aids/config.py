@@ -80,7 +80,9 @@ class DockingConfig:
     s m from the goal; otherwise at max_speed. It reverses when the emergency brake
     (``AidsConfig.brake``) stops it, when past the goal, or when less than ``abort`` m from
     the goal without being settled, and drives forwards again when braked or ``run_in`` m
-    back.
+    back. Settled within ``settle`` m of the goal, either side, it creeps to the goal at
+    clamp(speed_gain |s|, min_speed, max_speed), reversing where past it, whatever its pass
+    (0, the default: past the goal, it reverses a whole pass).
     """
 
     reach: float = 8.0  # m
@@ -98,9 +100,12 @@ class DockingConfig:
     # m: reversing, in practice until the brake stops it; settled, the law brings the errors
     # to ~1e-5 within ~4 m of path
     run_in: float = 10.0
+    settle: float = 0.0  # m
 
     def __post_init__(self) -> None:
         check_types(self)
+        require(math.isfinite(self.settle) and 0.0 <= self.settle <= self.abort,
+                "DockingConfig.settle", f"in [0, abort = {self.abort}]", self.settle)
         for name in ("reach", "lateral", "heading", "gain", "forward_gain", "reverse_gain",
                      "settled_lateral", "settled_heading", "speed_gain", "min_speed",
                      "max_speed", "run_in"):

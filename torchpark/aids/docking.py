@@ -57,18 +57,27 @@ def is_settled(error: GoalError, cfg: DockingConfig) -> Tensor:
     return (error.lateral.abs() < cfg.settled_lateral) & (error.heading.abs() < cfg.settled_heading)
 
 
+def in_creep(error: GoalError, cfg: DockingConfig) -> Tensor:
+    """Where the law creeps to the goal whatever its pass, bool [...]: settled and within
+    ``settle`` m of the goal, either side (nowhere with ``settle`` 0)."""
+    return is_settled(error, cfg) & (error.remaining.abs() <= cfg.settle) & (cfg.settle > 0)
+
+
 def docking_action(error: GoalError, reversing: Tensor, cfg: DockingConfig,
                    vehicle: VehicleConfig) -> tuple[Tensor, Tensor]:
     """The law's (v m/s, delta rad), each [...], within the vehicle's limits: reversing at
     ``max_speed`` where ``reversing`` (bool [...]) is set; elsewhere forwards, at
-    clamp(speed_gain s, min_speed, max_speed) once settled (s m left), else at max_speed.
+    clamp(speed_gain s, min_speed, max_speed) once settled (s m left), else at max_speed;
+    :func:`in_creep`, towards the goal at clamp(speed_gain |s|, min_speed, max_speed).
 
     Per metre of path, forwards e' = th and th' = tan(delta) / L; reversing, e' = -th and
     th' = -tan(delta) / L. tan(delta) = L (-k e - 2 sqrt(k) d th), d = +1 forwards and -1
     reversing, gives e'' = -k e - 2 sqrt(k) e' either way: with k = gain once settled, a
     gentler forward_gain / reverse_gain (mostly saturated steering) before.
     """
-    direction = torch.where(reversing, -1.0, 1.0)
+    creep = in_creep(error, cfg)
+    direction = torch.where(creep, torch.where(error.remaining >= 0.0, 1.0, -1.0),
+                            torch.where(reversing, -1.0, 1.0))
     settled = is_settled(error, cfg)
     gain = torch.where(settled, cfg.gain,
                        torch.where(reversing, cfg.reverse_gain, cfg.forward_gain))
@@ -76,7 +85,8 @@ def docking_action(error: GoalError, reversing: Tensor, cfg: DockingConfig,
                                      - 2.0 * gain.sqrt() * direction * error.heading)
     delta = torch.atan(tan_delta).clamp(-vehicle.max_steer, vehicle.max_steer)
     approach = (cfg.speed_gain * error.remaining).clamp(cfg.min_speed, cfg.max_speed)
-    speed = torch.where(settled & ~reversing, approach, cfg.max_speed)
+    speed = torch.where(creep, (cfg.speed_gain * error.remaining.abs()).clamp(
+        cfg.min_speed, cfg.max_speed), torch.where(settled & ~reversing, approach, cfg.max_speed))
     return direction * speed.clamp(max=vehicle.max_speed), delta
 
 
