@@ -5,7 +5,7 @@ distilled into one network that drives the paper's env alone.
                                              [--epochs 32] [--dagger-epochs 16]
                                              [--approach 32768] [--seed 0] [--overwrite]
                                              [--planner] [--clearance-features]
-                                             [--position]
+                                             [--position] [--settle 0.05] [--lr-decay]
 
 Each iteration runs a driver in lots at every occupancy level, half the starts near the
 goal: the teacher in the first (behaviour cloning), the current student in the later ones
@@ -511,6 +511,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     made_of = f" ({', '.join(parts)})" if parts else ""
     source = f"the approach planner with the aids of {teacher_path}" if cfg.planner \
         else f"the hybrid {teacher_path}"
+    if cfg.settle:
+        source += f" (its law creeping to the goal within {cfg.settle:g} m)"
     started = time.perf_counter()
     for iteration in range(cfg.iterations):
         batches = []
