@@ -104,8 +104,6 @@ class DockingConfig:
 
     def __post_init__(self) -> None:
         check_types(self)
-        require(math.isfinite(self.settle) and 0.0 <= self.settle <= self.abort,
-                "DockingConfig.settle", f"in [0, abort = {self.abort}]", self.settle)
         for name in ("reach", "lateral", "heading", "gain", "forward_gain", "reverse_gain",
                      "settled_lateral", "settled_heading", "speed_gain", "min_speed",
                      "max_speed", "run_in"):
@@ -114,6 +112,8 @@ class DockingConfig:
                  "DockingConfig.abort", f"in [0, run_in = {self.run_in}]", self.abort)
         require(self.min_speed <= self.max_speed, "DockingConfig.min_speed",
                  f"<= max_speed = {self.max_speed}", self.min_speed)
+        require(math.isfinite(self.settle) and 0.0 <= self.settle <= self.abort,
+                "DockingConfig.settle", f"in [0, abort = {self.abort}]", self.settle)
 
 
 @dataclass(frozen=True)
