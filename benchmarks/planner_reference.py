@@ -2,7 +2,7 @@
 paper's uniform starts.
 
     python benchmarks/planner_reference.py [--envs 200] [--occupancies 0 0.2 0.4 0.6 0.8 0.9]
-        [--no-brake] [--steer-clear 5] [--seed 12345] [--margin 0.2]
+        [--no-brake] [--steer-clear 5] [--seed 12345]
 
 The lot's geometry is the same in every env and a parked car lies inside its slot, so a path
 that keeps the car off every slot but its goal's is clear at every occupancy. The planner
@@ -44,11 +44,8 @@ def main() -> None:
                         default=[0.0, 0.2, 0.4, 0.6, 0.8, 0.9])
     add_brake_options(parser)
     parser.add_argument("--seed", type=int, default=12345)
-    parser.add_argument("--margin", type=float, default=PlannerConfig.margin,
-                        help="PlannerConfig.margin (m): the band along slots and walls "
-                             "its routes avoid")
     args = parser.parse_args()
-    plan = PlannerConfig(margin=args.margin)
+    plan = PlannerConfig()
     aids = AidsConfig(docking=DockingConfig(reach=plan.reach, lateral=plan.lateral,
                                             heading=plan.heading),
                       brake=brake_of(args))

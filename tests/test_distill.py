@@ -252,8 +252,7 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("steer_exponent", float("inf")),
                                           ("dagger_epochs", 0), ("gear_head", 1),
                                           ("goal_weight", 0.0), ("lr_decay", 1),
-                                          ("settle", -0.01), ("settle", float("nan")),
-                                          ("planner_margin", -1.0)])
+                                          ("settle", -0.01), ("settle", float("nan"))])
 def test_bad_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=rf"DistillConfig\.{field}"):
         DistillConfig(**{field: value})

@@ -132,8 +132,7 @@ class DistillConfig:
     (:mod:`torchpark.aids.planner`), the docking law's funnel by the planner's target;
     ``settle``: the teacher's law creeps back to the goal from up to ``settle`` m past it
     (:attr:`~torchpark.aids.config.DockingConfig.settle`), where it would reverse a whole
-    pass; ``planner_margin``: the planner's ``margin`` (None: PlannerConfig's), the band along
-    every slot and wall its routes avoid;
+    pass;
     ``goal_weight``: the weight of a state inside the 1-cm test (:data:`GOAL_COST`), on top of
     its others; ``lr_decay``: each fit's learning rate falls from ``lr`` to 0 along a cosine;
     ``epochs`` /
@@ -161,7 +160,6 @@ class DistillConfig:
     clearance_features: bool = False
     position: bool = False
     planner: bool = False
-    planner_margin: float | None = None
     settle: float = 0.0
     release: float | None = None
     yardstick: int = 200
@@ -189,8 +187,6 @@ class DistillConfig:
                 self.settle)
         if self.release is not None:
             positive("DistillConfig.release", self.release)
-        require(self.planner_margin is None or 0.0 <= self.planner_margin < float("inf"),
-                "DistillConfig.planner_margin", "None or finite, >= 0 (m)", self.planner_margin)
 
 
 class Teacher:
@@ -280,15 +276,6 @@ class Teacher:
 
     def forget(self, rows: torch.Tensor) -> None:
         self.state = AidState(*(torch.where(rows, torch.zeros_like(f), f) for f in self.state))
-
-
-def planner_config(cfg: DistillConfig) -> PlannerConfig | None:
-    """The teacher's planner (None without ``cfg.planner``)."""
-    if not cfg.planner:
-        return None
-    if cfg.planner_margin is None:
-        return PlannerConfig()
-    return PlannerConfig(margin=cfg.planner_margin)
 
 
 def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
@@ -495,7 +482,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     # outside the env to the final-approach states.
     features = Compose(*[t.clone() for t in inputs[:-1]
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
-    teacher = Teacher(teacher_path, env, cfg.release, planner_config(cfg), cfg.settle)
+    teacher = Teacher(teacher_path, env, cfg.release, PlannerConfig() if cfg.planner else None,
+                      cfg.settle)
     if cfg.approach and teacher.aids.docking is None:
         raise ValueError(f"teacher {teacher_path!r} has no docking law to label the final "
                          f"approach with: pass --approach 0")
