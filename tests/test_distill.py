@@ -424,6 +424,6 @@ def test_with_settle_the_planner_teacher_creeps_back_from_just_past_the_goal(tea
     law = teacher.aids.docking
     creep = max(law.speed_gain * 2e-3, law.min_speed)
     torch.testing.assert_close(speeds[0.05], torch.full((16,), -creep), rtol=1e-3, atol=1e-6)
-    # without: a whole pass back, fast (where the coarse planner finds a way out)
+    # without: the planner's pass at full speed, wherever the coarse planner finds a way out
     moving = speeds[0.0] != 0
-    assert moving.sum() >= 8 and (speeds[0.0][moving] < -100 * creep).all()
+    assert moving.sum() >= 8 and (speeds[0.0][moving].abs() > 100 * creep).all()

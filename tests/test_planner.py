@@ -90,41 +90,50 @@ def test_paths_down_the_cost_to_go_reach_the_target_and_keep_off_the_other_slots
         planner, layout, config):
     """From a cell clear of the other slots with a clear path (cheaper than one arc onto a
     slot) the descent stays clear of them, so of their parked cars at any occupancy; from
-    a cell on one it drives off it."""
+    a cell on one it drives off it. Each gear's table prices its changes of gear."""
     grid = planner.grid
     poses = grid_poses(grid, "cpu")
     target = target_cells(poses, layout, COARSE)
     roomy, _ = free_cells(poses, layout, config.vehicle, COARSE.margin)
     free, walled = free_cells(poses, layout, config.vehicle, COARSE.clearance)
-    assert torch.equal(planner.value == 0, target & roomy)
+    for gear in (0, 1):
+        assert torch.equal(planner.value[:, gear] == 0, target & roomy)
+    # a gear change is worth at most switch_cost, and somewhere it is worth all of it
+    forwards, reversing = planner.value.unbind(1)
+    finite = forwards.isfinite()
+    assert torch.equal(finite, reversing.isfinite())
+    gap = (forwards - reversing)[finite].abs()
+    assert gap.max() <= COARSE.switch_cost + 1e-4 and (gap > 0.9 * COARSE.switch_cost).any()
     # a path to the target from (almost) every cell off the walls, where the grid has one
-    has_target = (planner.value == 0).any(1)
+    has_target = (forwards == 0).any(1)
     assert has_target.sum() > 30
-    assert planner.value[has_target][:, walled].isfinite().float().mean() > 0.99
-    assert not planner.value[:, ~walled].isfinite().any()
+    assert forwards[has_target][:, walled].isfinite().float().mean() > 0.99
+    assert not planner.value[:, :, ~walled].isfinite().any()
     ends = cell_index(arcs(poses, planner.prim.travel, planner.prim.curvature), grid)
     mids = cell_index(arcs(poses, planner.prim.travel / 2, planner.prim.curvature), grid)
+    arc_gear = (planner.prim.travel < 0).long()
     gen = torch.Generator().manual_seed(2)
-    finite = planner.value.isfinite().nonzero()
-    picks = finite[torch.randint(finite.shape[0], (300,), generator=gen)]
+    picks = planner.value.isfinite().nonzero()
+    picks = picks[torch.randint(picks.shape[0], (300,), generator=gen)]
     cars = [polygon(box) for box in layout.cars]
     onto_slot = COARSE.slot_cost * planner.prim.cost.min()
     started_on_slot = 0
-    for slot, cell in picks.tolist():
-        value = planner.value[slot]
-        clear = bool(free[slot, cell]) and value[cell] < onto_slot
+    for slot, gear, cell in picks.tolist():
+        value = planner.value[slot]  # (2, count)
+        clear = bool(free[slot, cell]) and value[gear, cell] < onto_slot
         started_on_slot += not free[slot, cell]
         for _ in range(1000):
-            if value[cell] == 0:
+            if value[gear, cell] == 0:
                 break
             nxt, mid = ends[cell], mids[cell]
-            options = torch.where(nxt >= 0, value[nxt.clamp(min=0)], math.inf)
+            options = torch.where(nxt >= 0, value[arc_gear, nxt.clamp(min=0)], math.inf)
             on_slot = ~(free[slot, nxt.clamp(min=0)] & free[slot, mid.clamp(min=0)])
             scale = torch.where(on_slot, COARSE.slot_cost, torch.where(
                 roomy[slot, nxt.clamp(min=0)], 1.0, COARSE.band_cost))
-            step = options + planner.prim.cost * scale
-            assert step.min() <= value[cell] + 1e-4  # the cost falls along the arc taken
-            cell = int(nxt[step.argmin()])
+            step = (options + planner.prim.cost * scale
+                    + torch.where(arc_gear != gear, COARSE.switch_cost, 0.0))
+            assert step.min() <= value[gear, cell] + 1e-4  # the cost falls along the arc taken
+            cell, gear = int(nxt[step.argmin()]), int(arc_gear[step.argmin()])
             car = polygon(vehicle_boxes(poses[cell], config.vehicle))
             on_car = any(car.intersects(p) for j, p in enumerate(cars) if j != slot)
             assert not (clear and on_car), (slot, cell)
@@ -148,7 +157,8 @@ def test_plan_control_drives_at_the_planner_speed_with_its_angles(planner, layou
                                           ("reverse_cost", -1.0), ("margin", math.inf),
                                           ("clearance", -0.1), ("band_cost", math.nan),
                                           ("slot_cost", 0.5), ("slot_cost", math.nan),
-                                          ("reach_min", 8.0), ("speed", -2.0)])
+                                          ("reach_min", 8.0), ("speed", -2.0),
+                                          ("control_step", 0.0)])
 def test_bad_planner_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=f"PlannerConfig.{field}"):
         PlannerConfig(**{field: value})

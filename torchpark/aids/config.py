@@ -126,12 +126,14 @@ class PlannerConfig:
     never is; finite: a car standing on one drives off it), ``band_cost`` times as much
     within ``margin`` m of a slot or wall. Its target: ``reach_min`` to ``reach`` m back along
     the slot axis from the goal, within ``lateral`` m and ``heading`` rad of it. It drives at
-    ``speed`` m/s; a gear change costs ``switch_cost`` m; reading the cost between cells, one
-    no path leaves counts ``blocked_cost`` m dearer than the others."""
+    ``speed`` m/s, looking ahead two arcs of ``control_step`` m; a gear change costs
+    ``switch_cost`` m; reading the cost between cells, one no path leaves counts
+    ``blocked_cost`` m dearer than the others."""
 
     cell: float = 0.5  # m
     headings: int = 64
     step: float = 0.75  # m
+    control_step: float = 0.375  # m
     steers: int = 5
     reverse_cost: float = 1.5
     switch_cost: float = 2.0  # m
@@ -148,7 +150,7 @@ class PlannerConfig:
 
     def __post_init__(self) -> None:
         check_types(self)
-        for name in ("cell", "step", "speed", "reach", "lateral", "heading"):
+        for name in ("cell", "step", "control_step", "speed", "reach", "lateral", "heading"):
             positive(f"PlannerConfig.{name}", getattr(self, name))
         require(8 <= self.headings <= 1024, "PlannerConfig.headings", "an int in [8, 1024]",
                 self.headings)

@@ -10,10 +10,14 @@ behind each slot (the target: ``reach_min`` to ``reach`` m back along the slot a
 few steering angles forwards and in reverse (reversing costs ``reverse_cost`` per metre,
 ``band_cost`` times as much within ``margin`` m of a slot or wall, ``slot_cost`` times as
 much onto another slot; walls are never crossed): a car-like vehicle's multi-point turns
-come out of it, and so does the way out of a slot the car stands in. Every step of dt
-:func:`plan_control` tries every sequence of two such arcs from the car's exact pose, reads
-the cost-to-go at its end between cells (:func:`interpolated_cost`), and drives the first
-arc of the cheapest (a gear change costs ``switch_cost`` m more, so it does not chatter):
+come out of it, and so does the way out of a slot the car stands in; the gear is part of
+the state (a table per gear), each change of gear costing ``switch_cost`` m. Every step of
+dt :func:`plan_control` tries every sequence of two arcs of ``control_step`` m from the
+car's exact pose, checks their ends exactly against the slots and walls, reads the
+cost-to-go of the second arc's gear at its end between cells (:func:`interpolated_cost`),
+and drives the first arc of the cheapest (arcs shorter than the tables': the car finishes
+a leg of a multi-point turn in a lane barely longer than itself, where arcs of ``step`` m
+from its exact pose all end on a slot and it would rock between gears):
 the docking law (:mod:`torchpark.aids.docking`), with its funnel set to the planner's
 target, takes over from there. Everything is batched tensor ops: the tables over every
 slot at once, the control over every env (the sweeps' loop is over sweeps and arcs).
@@ -102,14 +106,16 @@ class Primitives(NamedTuple):
     cost: Tensor
 
 
-def primitives(cfg: PlannerConfig, vehicle: VehicleConfig, device: torch.device | str
-               ) -> Primitives:
-    """``cfg.steers`` steering angles over the vehicle's range, forwards and reversing."""
+def primitives(cfg: PlannerConfig, vehicle: VehicleConfig, device: torch.device | str,
+               step: float | None = None) -> Primitives:
+    """Arcs of ``step`` m (None: ``cfg.step``) at ``cfg.steers`` steering angles over the
+    vehicle's range, forwards and reversing."""
+    step = cfg.step if step is None else step
     steer = torch.linspace(-vehicle.max_steer, vehicle.max_steer, cfg.steers, device=device)
     gear = torch.tensor([1.0, -1.0], device=device).repeat_interleave(cfg.steers)
     steer = steer.repeat(2)
-    cost = torch.where(gear > 0, 1.0, cfg.reverse_cost) * cfg.step
-    return Primitives(gear * cfg.step, steer, torch.tan(steer) / vehicle.wheelbase, cost)
+    cost = torch.where(gear > 0, 1.0, cfg.reverse_cost) * step
+    return Primitives(gear * step, steer, torch.tan(steer) / vehicle.wheelbase, cost)
 
 
 def free_cells(poses: Tensor, layout: LotLayout, vehicle: VehicleConfig, margin: float,
@@ -140,9 +146,12 @@ def target_cells(poses: Tensor, layout: LotLayout, cfg: PlannerConfig) -> Tensor
 
 def cost_to_go(layout: LotLayout, vehicle: VehicleConfig, cfg: PlannerConfig,
                max_sweeps: int = 10_000) -> Tensor:
-    """The cheapest path's cost from every cell to each slot's target, float32 (S, count)
-    (inf where none is found, as from cells on a wall): value iteration until no cell
-    changes."""
+    """The cheapest path's cost from every cell to each slot's target, float32 (S, 2, count):
+    ``[:, 0]`` for a car moving forwards, ``[:, 1]`` for one reversing, each path paying
+    ``switch_cost`` m for every change of gear along it, the first against the car's (inf
+    where none is found, as from cells on a wall): value iteration until no cell changes.
+    With the gear in the state, the plan read from the tables one step later is the plan
+    of the step before, not one that changes gear again."""
     device = layout.slots.device
     grid = grid_of(layout, cfg)
     poses = grid_poses(grid, device)
@@ -157,6 +166,7 @@ def cost_to_go(layout: LotLayout, vehicle: VehicleConfig, cfg: PlannerConfig,
     inf = torch.tensor(math.inf, device=device)
     value = torch.where(target_cells(poses, layout, cfg) & roomy, 0.0, inf)
     value = torch.cat((value, torch.full_like(value[:, :1], math.inf)), 1)
+    value = torch.stack((value, value), 1)  # (S, 2, C + 1): forwards, reversing
     # The cost of each arc from each cell (S, C): inf where it ends or passes off the grid
     # or on a wall, ``slot_cost`` times more where it ends or passes on another slot,
     # ``band_cost`` times more where it ends within the margin of a slot or wall.
@@ -166,24 +176,30 @@ def cost_to_go(layout: LotLayout, vehicle: VehicleConfig, cfg: PlannerConfig,
         scale = torch.where(on_slot[:, end] | on_slot[:, mid], cfg.slot_cost,
                             torch.where(roomy[:, end.clamp(min=0)], 1.0, cfg.band_cost))
         arc_cost.append(torch.where(on_wall[end] | on_wall[mid], inf, prim.cost[k] * scale))
+    reversing = (prim.travel < 0).long().tolist()
     for _ in range(max_sweeps):
-        best = value[:, :-1]
+        # the cheapest path that starts with an arc forwards, and one reversing
+        start = [value.new_full(value[:, 0, :-1].shape, math.inf) for _ in range(2)]
         for k, cost in enumerate(arc_cost):
-            best = torch.minimum(best, value[:, ends[:, k]] + cost)
-        best = torch.where(walled, best, inf)
-        if torch.equal(best, value[:, :-1]):
+            g = reversing[k]
+            start[g] = torch.minimum(start[g], value[:, g, ends[:, k]] + cost)
+        best = torch.stack((torch.minimum(start[0], start[1] + cfg.switch_cost),
+                            torch.minimum(start[1], start[0] + cfg.switch_cost)), 1)
+        best = torch.where(walled, torch.minimum(value[:, :, :-1], best), inf)
+        if torch.equal(best, value[:, :, :-1]):
             break
-        value = torch.cat((best, value[:, -1:]), 1)
-    return value[:, :-1].contiguous()
+        value = torch.cat((best, value[:, :, -1:]), 2)
+    return value[:, :, :-1].contiguous()
 
 
 class Planner(NamedTuple):
     """A lot's cost-to-go tables (:func:`cost_to_go`) with what reading them needs: the
     slots (S,) and walls (4,) its paths keep off, and the vehicle."""
 
-    value: Tensor  # (S, count) float32
+    value: Tensor  # (S, 2, count) float32: forwards, reversing
     grid: Grid
-    prim: Primitives
+    prim: Primitives  # the tables' arcs, ``cfg.step`` m
+    control: Primitives  # the control's, ``cfg.control_step`` m
     slots: OrientedBoxes
     walls: OrientedBoxes
     vehicle: VehicleConfig
@@ -194,7 +210,8 @@ def build_planner(layout: LotLayout, vehicle: VehicleConfig, cfg: PlannerConfig)
     """The planner of a lot (its tables take a few seconds to two minutes to compute)."""
     device = layout.slots.device
     return Planner(cost_to_go(layout, vehicle, cfg), grid_of(layout, cfg),
-                   primitives(cfg, vehicle, device), oriented_boxes(layout.slots),
+                   primitives(cfg, vehicle, device),
+                   primitives(cfg, vehicle, device, cfg.control_step), oriented_boxes(layout.slots),
                    oriented_boxes(layout.walls), vehicle, cfg)
 
 
@@ -212,9 +229,9 @@ def clear_of_slots(planner: Planner, pose: Tensor, goal_slot: Tensor) -> tuple[T
 UNREACHABLE = 1e6  # m: the cost read where no surrounding cell has a path
 
 
-def interpolated_cost(value: Tensor, slot: Tensor, pose: Tensor, grid: Grid,
+def interpolated_cost(value: Tensor, row: Tensor, pose: Tensor, grid: Grid,
                       blocked_cost: float) -> Tensor:
-    """The cost-to-go tables ``value`` (S, count) of slots ``slot`` (N,) read at poses
+    """Rows ``row`` (N, K) of the cost-to-go tables ``value`` (R, count) read at poses
     (N, K, 3), (N, K): linear in x, y and heading between the 8 surrounding cells, a cell no
     path leaves (or off the grid) counting as the dearest of the others plus
     ``blocked_cost`` m, so the cost rises towards obstacles; UNREACHABLE m where no
@@ -229,7 +246,7 @@ def interpolated_cost(value: Tensor, slot: Tensor, pose: Tensor, grid: Grid,
         inside = (ix >= 0) & (ix < grid.size_x) & (iy >= 0) & (iy < grid.size_y)
         index = ((ih * grid.size_x + ix.clamp(0, grid.size_x - 1)) * grid.size_y
                  + iy.clamp(0, grid.size_y - 1))
-        cost = value.view(-1)[index + slot[:, None] * grid.count]
+        cost = value.reshape(-1)[index + row * grid.count]
         costs.append(torch.where(inside, cost, math.inf))
         weights.append((wx if dx else 1 - wx) * (wy if dy else 1 - wy) * (wh if dh else 1 - wh))
     cost, weight = torch.stack(costs, -1), torch.stack(weights, -1)
@@ -243,20 +260,24 @@ def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tenso
                  ) -> tuple[Tensor, Tensor, Tensor]:
     """The planner's control at poses (N, 3) moving at ``speed`` (N,) m/s towards slots
     ``goal_slot`` (N,): (v m/s, delta rad, cost-to-go m), each (N,). Of the sequences of
-    two arcs from the exact pose, the one whose end has the least cost
-    (:func:`interpolated_cost`) plus the arcs' own (``slot_cost`` times theirs where an
-    arc's end puts the car on another slot, :func:`clear_of_slots`; plus ``switch_cost``
-    for each change of gear, the first against the way the car moves), among those whose
-    two ends keep the car off the walls, gives the first arc's gear and steering; v is
+    two arcs of ``cfg.control_step`` m from the exact pose, the one whose end has the least
+    cost in its second arc's gear (:func:`interpolated_cost`) plus the arcs' own
+    (``slot_cost`` times theirs where an arc's end puts the car on another slot,
+    :func:`clear_of_slots`; plus ``switch_cost`` for each change of gear, the first against
+    the way the car moves), among those whose two ends keep the car off the walls, gives
+    the first arc's gear and steering; v is
     ``speed`` in that gear, 0 where every sequence is blocked or ends among cells no path
     leaves."""
-    prim, cfg = planner.prim, planner.cfg
+    prim, cfg = planner.control, planner.cfg
     gear = torch.sign(prim.travel)
     first = arcs(pose, prim.travel, prim.curvature)  # (N, K, 3)
     second = arcs(first, prim.travel, prim.curvature)  # (N, K, K, 3)
     n, k = first.shape[:2]
-    ahead = interpolated_cost(planner.value, goal_slot, second.reshape(n, k * k, 3),
-                              planner.grid, cfg.blocked_cost).view(n, k, k)
+    # the table of the second arc's gear
+    row = goal_slot[:, None, None] * 2 + (gear < 0).long()
+    ahead = interpolated_cost(planner.value.flatten(0, 1), row.expand(n, k, k).reshape(n, -1),
+                              second.reshape(n, k * k, 3), planner.grid,
+                              cfg.blocked_cost).view(n, k, k)
     moving = torch.sign(speed)[:, None]
     switch = torch.where((moving != 0) & (moving != gear), cfg.switch_cost, 0.0)  # (N, K)
     again = torch.where(gear[:, None] != gear[None, :], cfg.switch_cost, 0.0)  # (K, K)
