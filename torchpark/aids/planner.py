@@ -150,8 +150,7 @@ def cost_to_go(layout: LotLayout, vehicle: VehicleConfig, cfg: PlannerConfig,
     ``[:, 0]`` for a car moving forwards, ``[:, 1]`` for one reversing, each path paying
     ``switch_cost`` m for every change of gear along it, the first against the car's (inf
     where none is found, as from cells on a wall): value iteration until no cell changes.
-    With the gear in the state, the plan read from the tables one step later is the plan
-    of the step before, not one that changes gear again."""
+    The tables price a path's changes of gear as :func:`plan_control` does its own."""
     device = layout.slots.device
     grid = grid_of(layout, cfg)
     poses = grid_poses(grid, device)
@@ -265,9 +264,8 @@ def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tenso
     (``slot_cost`` times theirs where an arc's end puts the car on another slot,
     :func:`clear_of_slots`; plus ``switch_cost`` for each change of gear, the first against
     the way the car moves), among those whose two ends keep the car off the walls, gives
-    the first arc's gear and steering; v is
-    ``speed`` in that gear, 0 where every sequence is blocked or ends among cells no path
-    leaves."""
+    the first arc's gear and steering; v is ``speed`` in that gear, 0 where every sequence
+    is blocked or ends among cells no path leaves."""
     prim, cfg = planner.control, planner.cfg
     gear = torch.sign(prim.travel)
     first = arcs(pose, prim.travel, prim.curvature)  # (N, K, 3)
