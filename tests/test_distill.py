@@ -252,7 +252,9 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("steer_exponent", float("inf")),
                                           ("dagger_epochs", 0), ("gear_head", 1),
                                           ("goal_weight", 0.0), ("lr_decay", 1),
-                                          ("settle", -0.01), ("settle", float("nan"))])
+                                          ("settle", -0.01), ("settle", float("nan")),
+                                          ("width", 0), ("width", True), ("depth", 9),
+                                          ("depth", 2.0)])
 def test_bad_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=rf"DistillConfig\.{field}"):
         DistillConfig(**{field: value})
@@ -377,6 +379,18 @@ def test_the_alone_preset_starts_from_the_student_of_a_fast_teacher(tmp_path):
     for section in _INIT_SECTIONS:
         assert config_differences(student, load_config("alone"), section, _INIT_FREE) == ""
     assert config_differences(student, fast, "agent", _INIT_FREE) != ""
+
+
+def test_the_students_layers_are_the_teachers_unless_width_or_depth_is_given(teacher_path):
+    teacher = load(teacher_path)[0].model.hidden
+    sizes = {(width, depth): student_config(teacher_path, DistillConfig(width=width, depth=depth)
+                                            ).model.hidden
+             for width in (None, 24) for depth in (None, 3)}
+    assert sizes == {(None, None): teacher, (24, None): [24] * len(teacher),
+                     (None, 3): [teacher[0]] * 3, (24, 3): [24] * 3}
+    actor, _ = build_models(student_config(teacher_path, DistillConfig(width=24, depth=3)))
+    linears = [m for m in actor.modules() if isinstance(m, torch.nn.Linear)]
+    assert [m.out_features for m in linears[:-1]] == [24] * 3
 
 
 def test_goal_cost_is_the_envs_cost_of_the_state_a_student_input_shows():

@@ -6,6 +6,7 @@ distilled into one network that drives the paper's env alone.
                                              [--approach 32768] [--seed 0] [--overwrite]
                                              [--planner] [--clearance-features]
                                              [--position] [--settle 0.05] [--lr-decay]
+                                             [--width 512] [--depth 3]
 
 Each iteration runs a driver in lots at every occupancy level, half the starts near the
 goal: the teacher in the first (behaviour cloning), the current student in the later ones
@@ -70,6 +71,7 @@ import argparse
 import csv
 import dataclasses
 import time
+import typing
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -136,7 +138,8 @@ class DistillConfig:
     ``goal_weight``: the weight of a state inside the 1-cm test (:data:`GOAL_COST`), on top of
     its others; ``lr_decay``: each fit's learning rate falls from ``lr`` to 0 along a cosine;
     ``epochs`` /
-    ``dagger_epochs``: passes over the data after the first / each later iteration."""
+    ``dagger_epochs``: passes over the data after the first / each later iteration;
+    ``width`` / ``depth``: the student's hidden layers (None: the teacher's sizes)."""
 
     iterations: int = 2
     envs: int = 128
@@ -162,6 +165,8 @@ class DistillConfig:
     planner: bool = False
     settle: float = 0.0
     release: float | None = None
+    width: int | None = None
+    depth: int | None = None
     yardstick: int = 200
     seed: int = 0
 
@@ -187,6 +192,10 @@ class DistillConfig:
                 self.settle)
         if self.release is not None:
             positive("DistillConfig.release", self.release)
+        for name, high in (("width", 4096), ("depth", 8)):
+            value = getattr(self, name)
+            require(value is None or 1 <= value <= high, f"DistillConfig.{name}",
+                    f"None or an int in [1, {high}]", value)
 
 
 class Teacher:
@@ -281,16 +290,21 @@ class Teacher:
 def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
     """The student's TrainConfig: the paper's env and agent (no aid, one action per step of
     dt) with the goal features (and the clearance features and position, if asked) and the
-    power action map of ``speed_exponent`` / ``steer_exponent``, the teacher's network sizes;
-    training starts near the goal with probability ``near_goal``."""
+    power action map of ``speed_exponent`` / ``steer_exponent``, the teacher's network sizes
+    (each hidden layer ``width`` wide and ``depth`` of them, where given); training starts
+    near the goal with probability ``near_goal``."""
     tcfg, _ = load(teacher)
+    hidden = list(tcfg.model.hidden)
+    if cfg.width is not None or cfg.depth is not None:
+        hidden = [cfg.width or hidden[0]] * (cfg.depth or len(hidden))
     student = TrainConfig(
         env=EnvConfig(num_envs=cfg.envs, max_steps=tcfg.env.max_steps),
         agent=AgentConfig(action_exponents=[cfg.speed_exponent, cfg.steer_exponent],
                           gear_head=cfg.gear_head, goal_features=True,
                           clearance_features=cfg.clearance_features,
                           observe_position=cfg.position),
-        model=tcfg.model, logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
+        model=dataclasses.replace(tcfg.model, hidden=hidden),
+        logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
     student.train.near_goal_starts = cfg.near_goal
     return student
 
@@ -560,13 +574,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", required=True, help="directory of the student's files")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the outputs already in --out (refused by default)")
+    hints = typing.get_type_hints(DistillConfig)
     for field in dataclasses.fields(DistillConfig):
         flag = f"--{field.name.replace('_', '-')}"
         if isinstance(field.default, bool):  # --gear-head / --no-gear-head
             parser.add_argument(flag, action=argparse.BooleanOptionalAction,
                                 default=field.default)
             continue
-        kind = float if field.default is None else type(field.default)
+        # int, float, or the X of an ``X | None``
+        kind = next(k for k in typing.get_args(hints[field.name]) or (hints[field.name],)
+                    if k is not type(None))
         parser.add_argument(flag, type=kind, default=field.default)
     args = parser.parse_args(argv)
     out = Path(args.out)
