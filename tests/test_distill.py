@@ -45,6 +45,7 @@ from trainers.utils import (
     policy_input,
 )
 
+COARSE_PLAN = PlannerConfig(cell=1.0, headings=32, step=1.5)  # builds in seconds
 HYBRID = ["agent.emergency_brake=true", "agent.steer_clear=5", "agent.docking=true",
           "agent.observe_brake=true", "agent.goal_features=true",
           "agent.action_exponents=[1.0,1.0]", "env.max_steps=200"]
@@ -140,11 +141,11 @@ def test_a_teacher_without_the_law_has_no_final_approach_to_label(tmp_path, caps
 
 
 def test_the_planner_teacher_drives_the_planner_then_the_law_in_its_target(teacher_path):
-    plan = PlannerConfig(cell=1.0, headings=32, step=1.5)  # coarse: builds in seconds
     paper = ParkingEnv(16, seed=3, config=ParkingConfig(occupancy=0.9))
-    teacher = Teacher(teacher_path, TransformedEnv(paper), planner=plan)
+    teacher = Teacher(teacher_path, TransformedEnv(paper), planner=COARSE_PLAN)
     law = teacher.aids.docking
-    assert (law.reach, law.lateral, law.heading) == (plan.reach, plan.lateral, plan.heading)
+    assert (law.reach, law.lateral, law.heading) == (COARSE_PLAN.reach, COARSE_PLAN.lateral,
+                                                        COARSE_PLAN.heading)
     td = paper.reset()
     sim = paper.state
     label = teacher.label(td["observation"])
@@ -188,7 +189,7 @@ def test_the_planner_needs_the_teachers_law(tmp_path):
     path = write_checkpoint(tmp_path / "brake.pt", brake_only)
     with pytest.raises(ValueError, match="no docking law to take over from the planner"):
         Teacher(path, TransformedEnv(ParkingEnv(2, seed=0)),
-                planner=PlannerConfig(cell=1.0, headings=32, step=1.5))
+                planner=COARSE_PLAN)
 
 
 def test_the_inverse_power_map_gives_what_the_map_turns_into_the_control():
@@ -253,6 +254,7 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("dagger_epochs", 0), ("gear_head", 1),
                                           ("goal_weight", 0.0), ("lr_decay", 1),
                                           ("settle", -0.01), ("settle", float("nan")),
+                                          ("retry", -1.0), ("retry", float("inf")),
                                           ("width", 0), ("width", True), ("depth", 9),
                                           ("depth", 2.0)])
 def test_bad_settings_are_refused_by_name(field, value):
@@ -422,18 +424,26 @@ def test_each_fit_starts_at_lr_and_decays_to_zero_if_asked(teacher_path, lr_deca
         assert lr == (pytest.approx(0.0, abs=1e-12) if lr_decay else cfg.lr)
 
 
-def test_with_settle_the_planner_teacher_creeps_back_from_just_past_the_goal(teacher_path):
-    plan = PlannerConfig(cell=1.0, headings=32, step=1.5)  # coarse: builds in seconds
+def past_the_goal(side: torch.Tensor) -> tuple[ParkingEnv, torch.Tensor]:
+    """A paper's env of 16 lots at 90 %, each car 2 mm past its goal, ``side`` (16,) m to
+    the left of the slot axis, at 1 mm/s; and its observation."""
     paper = ParkingEnv(16, seed=3, config=ParkingConfig(occupancy=0.9))
     paper.reset()
     sim = paper.state
     goal = sim.goal
-    past = torch.stack((goal[:, 0] + 2e-3 * torch.cos(goal[:, 2]),
-                        goal[:, 1] + 2e-3 * torch.sin(goal[:, 2]), goal[:, 2]), -1)
-    obs = paper.set_state(sim._replace(pose=past, speed=torch.full((16,), 1e-3)))["observation"]
+    c, s = torch.cos(goal[:, 2]), torch.sin(goal[:, 2])
+    past = torch.stack((goal[:, 0] + 2e-3 * c - side * s, goal[:, 1] + 2e-3 * s + side * c,
+                        goal[:, 2]), -1)
+    return paper, paper.set_state(sim._replace(pose=past,
+                                               speed=torch.full((16,), 1e-3)))["observation"]
+
+
+def test_with_settle_the_planner_teacher_creeps_back_from_just_past_the_goal(teacher_path):
+    paper, obs = past_the_goal(torch.zeros(16))
     speeds = {}
     for settle in (0.0, 0.05):
-        teacher = Teacher(teacher_path, TransformedEnv(paper), planner=plan, settle=settle)
+        teacher = Teacher(teacher_path, TransformedEnv(paper), planner=COARSE_PLAN,
+                          settle=settle)
         speeds[settle] = teacher.label(obs)[:, 0]
     law = teacher.aids.docking
     creep = max(law.speed_gain * 2e-3, law.min_speed)
@@ -441,3 +451,18 @@ def test_with_settle_the_planner_teacher_creeps_back_from_just_past_the_goal(tea
     # without: the planner's pass at full speed, wherever the coarse planner finds a way out
     moving = speeds[0.0] != 0
     assert moving.sum() >= 8 and (speeds[0.0][moving].abs() > 100 * creep).all()
+
+
+def test_with_retry_the_planner_teacher_backs_out_where_the_test_cannot_pass(teacher_path):
+    # half the rows 3 mm to the side (a near miss), half 0.1 mm (fine)
+    paper, obs = past_the_goal(torch.where(torch.arange(16) % 2 == 0, 3e-3, 1e-4))
+    teacher = Teacher(teacher_path, TransformedEnv(paper), planner=COARSE_PLAN, settle=0.05,
+                      retry=1.0)
+    speed = teacher.label(obs)[:, 0]
+    law = teacher.aids.docking
+    assert law.retry == 1.0 and law.settle == 0.05
+    creep = max(law.speed_gain * 2e-3, law.min_speed)
+    torch.testing.assert_close(speed[1::2], torch.full((8,), -creep), rtol=1e-3, atol=1e-6)
+    # the near misses: the law's pass back, at full speed (not the planner's way out of the
+    # slot, forwards or backwards wherever its tables say)
+    assert (speed[0::2] == -law.max_speed).all()

@@ -28,8 +28,10 @@ from torchpark.aids.docking import (
     docking_phase,
     error_from_goal,
     in_funnel,
+    take_over,
 )
 from torchpark.runner import run_episodes
+from torchpark.sim.vehicle import bicycle_step
 
 # Every start within 0.1 m and 0.1 rad of the slot axis, 0-6 m behind the goal.
 BOX = NearGoalStarts(probability=1.0, reach=6.0, lateral=0.1, heading=0.1)
@@ -208,12 +210,50 @@ def test_settled_near_the_goal_the_law_creeps_to_it_from_either_side():
     assert (v0[reversing] == -law.max_speed).all()
 
 
+def test_with_retry_a_near_miss_at_the_goal_backs_out_and_passes_the_test():
+    # The law alone on the bicycle from where students stall: a hair past the goal (at the
+    # origin, heading 0), mm off the axis, a few tenths of a degree crooked.
+    vehicle = VehicleConfig()
+    lateral = torch.tensor([3e-3, -2e-3, 5e-3, 1e-3, 1e-4])
+    heading = torch.tensor([-6e-3, 4e-3, -1e-2, -2e-3, 2e-4])  # the last one: fine
+    start = torch.stack((torch.full_like(lateral, 5e-4), -lateral, heading), -1)
+    goal = torch.zeros_like(start)
+
+    def passes(law: DockingConfig, steps: int = 600) -> torch.Tensor:
+        pose, v = start, torch.full_like(lateral, 1e-3)
+        engaged, reversing = torch.ones_like(lateral, dtype=torch.bool), v < 0
+        passed = torch.zeros_like(engaged)
+        for _ in range(steps):
+            v, delta, engaged, reversing = take_over(pose, goal, v, v, engaged, reversing,
+                                                     torch.zeros_like(engaged), law, vehicle)
+            pose = bicycle_step(pose, v, delta, vehicle)
+            error = error_from_goal(pose, goal)
+            cost = (0.35 * (error.remaining.abs() + error.lateral.abs())
+                    + 0.2 * error.heading.abs() + 0.1 * v.abs())
+            passed |= cost < 4e-4
+        return passed
+
+    # creeping back and forth at the goal cannot move the car sideways: only the fine one
+    assert passes(DockingConfig(settle=0.05)).tolist() == [False] * 4 + [True]
+    # with retry, it reverses 1 m, drives in again lined up, and passes
+    assert passes(DockingConfig(settle=0.05, retry=1.0)).all()
+    # its first step: within the finish errors the creep back, beyond them the pass back
+    law = DockingConfig(settle=0.05, retry=1.0)
+    no = torch.zeros_like(lateral, dtype=torch.bool)
+    v = torch.full_like(lateral, 1e-3)
+    v, _, _, reversing = take_over(start, goal, v, v, ~no, no, no, law, vehicle)
+    assert v[-1].item() == pytest.approx(-law.min_speed) and (v[:-1] == -law.max_speed).all()
+    assert reversing[:-1].all()
+
+
 @pytest.mark.parametrize("field, value", [("reach", 0.0), ("lateral", -1.0),
                                           ("gain", float("nan")), ("max_speed", math.inf),
                                           ("min_speed", 2.0), ("abort", 11.0),
                                           ("run_in", -1.0), ("forward_gain", 0.0),
                                           ("settle", -0.01), ("settle", 0.6),
-                                          ("settle", float("nan"))])
+                                          ("settle", float("nan")), ("retry", -1.0),
+                                          ("retry", 11.0), ("finish_lateral", 0.0),
+                                          ("finish_heading", math.inf)])
 def test_bad_docking_config_is_rejected_by_name(field, value):
     with pytest.raises(ValueError, match=rf"DockingConfig\.{field}"):
         DockingConfig(**{field: value})

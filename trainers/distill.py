@@ -91,7 +91,7 @@ from torchpark.aids.actions import (
 )
 from torchpark.aids.brake import steer_angles
 from torchpark.aids.config import BrakeConfig, DockingConfig, PlannerConfig
-from torchpark.aids.docking import error_from_goal, in_creep, in_funnel
+from torchpark.aids.docking import error_from_goal, in_funnel, in_settle
 from torchpark.aids.planner import build_planner, plan_control
 from torchpark.aids.starts import near_starts_free
 from torchpark.aids.step import AidedState, AidState, aided_control
@@ -134,7 +134,9 @@ class DistillConfig:
     (:mod:`torchpark.aids.planner`), the docking law's funnel by the planner's target;
     ``settle``: the teacher's law creeps back to the goal from up to ``settle`` m past it
     (:attr:`~torchpark.aids.config.DockingConfig.settle`), where it would reverse a whole
-    pass;
+    pass; ``retry``: only where the test can still pass, else it reverses ``retry`` m and
+    drives in again (:attr:`~torchpark.aids.config.DockingConfig.retry`; 0: creeps back
+    whatever the errors);
     ``goal_weight``: the weight of a state inside the 1-cm test (:data:`GOAL_COST`), on top of
     its others; ``lr_decay``: each fit's learning rate falls from ``lr`` to 0 along a cosine;
     ``epochs`` /
@@ -164,6 +166,7 @@ class DistillConfig:
     position: bool = False
     planner: bool = False
     settle: float = 0.0
+    retry: float = 0.0
     release: float | None = None
     width: int | None = None
     depth: int | None = None
@@ -188,8 +191,10 @@ class DistillConfig:
         require(0.0 <= self.near_goal <= 1.0, "DistillConfig.near_goal", "in [0, 1]",
                 self.near_goal)
         require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
-        require(0.0 <= self.settle < float("inf"), "DistillConfig.settle", "finite, >= 0 (m)",
-                self.settle)
+        for name in ("settle", "retry"):
+            value = getattr(self, name)
+            require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
+                    value)
         if self.release is not None:
             positive("DistillConfig.release", self.release)
         for name, high in (("width", 4096), ("depth", 8)):
@@ -206,18 +211,21 @@ class Teacher:
     brake's flag) as if it had; ``forget(rows)`` clears it where episodes ended."""
 
     def __init__(self, path: str, env: TransformedEnv, release: float | None = None,
-                 planner: PlannerConfig | None = None, settle: float = 0.0) -> None:
+                 planner: PlannerConfig | None = None, settle: float = 0.0,
+                 retry: float = 0.0) -> None:
         cfg, checkpoint = load(path)
         _, self.aids = env_configs(cfg, training=False)
         if self.aids is None or (self.aids.docking is None and self.aids.brake is None):
             raise ValueError(f"teacher {path!r} has neither the brake nor the docking law: "
                              f"distil a hybrid agent")
-        if settle:
-            if self.aids.docking is None:
-                raise ValueError(f"teacher {path!r} has no docking law to settle with: "
-                                 f"drop --settle")
+        for name, value in (("settle", settle), ("retry", retry)):
+            if value and self.aids.docking is None:
+                raise ValueError(f"teacher {path!r} has no docking law to {name} with: "
+                                 f"drop --{name}")
+        given = {name: value for name, value in (("settle", settle), ("retry", retry)) if value}
+        if given:
             self.aids = dataclasses.replace(self.aids, docking=dataclasses.replace(
-                self.aids.docking, settle=settle))
+                self.aids.docking, **given))
         self.actor = make_policy(cfg, checkpoint["actor"])
         self.base = env.base_env
         # With the planner, it drives where the checkpoint's policy did, up to its target,
@@ -265,7 +273,7 @@ class Teacher:
             # funnel, in the gear the car moves in (its reversing pass ends at the funnel's
             # far end, where the planner brings the car back in).
             error = error_from_goal(sim.pose, sim.goal)
-            funnel = in_funnel(error, law) | in_creep(error, law)
+            funnel = in_funnel(error, law) | in_settle(error, law)
             self.state = self.state._replace(docking_engaged=funnel,
                                              docking_reverses=funnel & (sim.speed < 0))
             action = torch.stack(plan_control(self.planner, sim.pose, sim.speed,
@@ -497,7 +505,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     features = Compose(*[t.clone() for t in inputs[:-1]
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
     teacher = Teacher(teacher_path, env, cfg.release, PlannerConfig() if cfg.planner else None,
-                      cfg.settle)
+                      cfg.settle, cfg.retry)
     if cfg.approach and teacher.aids.docking is None:
         raise ValueError(f"teacher {teacher_path!r} has no docking law to label the final "
                          f"approach with: pass --approach 0")
@@ -514,7 +522,9 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     source = f"the approach planner with the aids of {teacher_path}" if cfg.planner \
         else f"the hybrid {teacher_path}"
     if cfg.settle:
-        source += f" (its law creeping to the goal within {cfg.settle:g} m)"
+        source += f" (its law creeping to the goal within {cfg.settle:g} m"
+        source += f", retrying {cfg.retry:g} m back where the test cannot pass)" if cfg.retry \
+            else ")"
     started = time.perf_counter()
     for iteration in range(cfg.iterations):
         batches = []

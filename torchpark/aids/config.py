@@ -82,7 +82,11 @@ class DockingConfig:
     the goal without being settled, and drives forwards again when braked or ``run_in`` m
     back. Settled within ``settle`` m of the goal, either side, it creeps to the goal at
     clamp(speed_gain |s|, min_speed, max_speed), reversing where past it, whatever its pass
-    (0, the default: past the goal, it reverses a whole pass).
+    (0, the default: past the goal, it reverses a whole pass). With ``retry`` > 0 it creeps
+    back from past the goal only within ``finish_lateral`` m and ``finish_heading`` rad of
+    the axis, where the success test can still pass (0.35 * 3e-4 + 0.2 * 6e-4 of its 4e-4,
+    the rest for the creep's mm/s); beyond, it reverses a pass that ends, settled, ``retry`` m
+    back, and drives in again (a creep at the goal cannot move the car sideways).
     """
 
     reach: float = 8.0  # m
@@ -101,12 +105,15 @@ class DockingConfig:
     # to ~1e-5 within ~4 m of path
     run_in: float = 10.0
     settle: float = 0.0  # m
+    retry: float = 0.0  # m
+    finish_lateral: float = 3e-4  # m
+    finish_heading: float = 6e-4  # rad
 
     def __post_init__(self) -> None:
         check_types(self)
         for name in ("reach", "lateral", "heading", "gain", "forward_gain", "reverse_gain",
                      "settled_lateral", "settled_heading", "speed_gain", "min_speed",
-                     "max_speed", "run_in"):
+                     "max_speed", "run_in", "finish_lateral", "finish_heading"):
             positive(f"DockingConfig.{name}", getattr(self, name))
         require(math.isfinite(self.abort) and 0.0 <= self.abort <= self.run_in,
                  "DockingConfig.abort", f"in [0, run_in = {self.run_in}]", self.abort)
@@ -114,6 +121,8 @@ class DockingConfig:
                  f"<= max_speed = {self.max_speed}", self.min_speed)
         require(math.isfinite(self.settle) and 0.0 <= self.settle <= self.abort,
                 "DockingConfig.settle", f"in [0, abort = {self.abort}]", self.settle)
+        require(math.isfinite(self.retry) and 0.0 <= self.retry <= self.run_in,
+                "DockingConfig.retry", f"in [0, run_in = {self.run_in}]", self.retry)
 
 
 @dataclass(frozen=True)

@@ -57,10 +57,27 @@ def is_settled(error: GoalError, cfg: DockingConfig) -> Tensor:
     return (error.lateral.abs() < cfg.settled_lateral) & (error.heading.abs() < cfg.settled_heading)
 
 
-def in_creep(error: GoalError, cfg: DockingConfig) -> Tensor:
-    """Where the law creeps to the goal whatever its pass, bool [...]: settled and within
-    ``settle`` m of the goal, either side (nowhere with ``settle`` 0)."""
+def in_settle(error: GoalError, cfg: DockingConfig) -> Tensor:
+    """Where the law finishes, bool [...]: settled and within ``settle`` m of the goal,
+    either side (nowhere with ``settle`` 0)."""
     return is_settled(error, cfg) & (error.remaining.abs() <= cfg.settle) & (cfg.settle > 0)
+
+
+def is_fine(error: GoalError, cfg: DockingConfig) -> Tensor:
+    """Whether creeping along the axis can still pass the test, bool [...]: within
+    ``finish_lateral`` m and ``finish_heading`` rad of the slot axis (always with ``retry``
+    0)."""
+    return ((error.lateral.abs() < cfg.finish_lateral)
+            & (error.heading.abs() < cfg.finish_heading)) | (cfg.retry == 0)
+
+
+def in_creep(error: GoalError, reversing: Tensor, cfg: DockingConfig) -> Tensor:
+    """Where the law creeps to the goal whatever its pass, bool [...]: :func:`in_settle`,
+    and :func:`is_fine` unless short of the goal and driving in (``reversing``: bool
+    [...]). Past the goal or backing away from it with errors the test cannot pass, the law
+    takes another pass instead (``DockingConfig.retry``)."""
+    return in_settle(error, cfg) & (is_fine(error, cfg)
+                                    | ((error.remaining >= 0.0) & ~reversing))
 
 
 def docking_action(error: GoalError, reversing: Tensor, cfg: DockingConfig,
@@ -75,7 +92,7 @@ def docking_action(error: GoalError, reversing: Tensor, cfg: DockingConfig,
     reversing, gives e'' = -k e - 2 sqrt(k) e' either way: with k = gain once settled, a
     gentler forward_gain / reverse_gain (mostly saturated steering) before.
     """
-    creep = in_creep(error, cfg)
+    creep = in_creep(error, reversing, cfg)
     direction = torch.where(creep, torch.where(error.remaining >= 0.0, 1.0, -1.0),
                             torch.where(reversing, -1.0, 1.0))
     settled = is_settled(error, cfg)
@@ -97,15 +114,17 @@ def docking_phase(error: GoalError, engaged: Tensor, reversing: Tensor, braked: 
 
     It takes over on entering the funnel (driving forwards) and keeps the wheel. Forwards, it
     turns to reverse when braked, past the goal, or less than ``abort`` m from the goal
-    without being settled; reversing, it turns forwards when braked or ``run_in`` m back:
-    a multi-point turn whose every pass lines the car up further.
+    without being settled; reversing, it turns forwards when braked, ``run_in`` m back, or
+    settled ``retry`` m back (with ``retry`` > 0): a multi-point turn whose every pass lines
+    the car up further.
     """
     entered = ~engaged & in_funnel(error, cfg)
     engaged = engaged | entered
     forwards = ~reversing | entered
     to_reverse = braked | (error.remaining < 0.0) | (
         (error.remaining < cfg.abort) & ~is_settled(error, cfg))
-    to_forwards = braked | (error.remaining >= cfg.run_in)
+    to_forwards = braked | (error.remaining >= cfg.run_in) | (
+        (cfg.retry > 0) & (error.remaining >= cfg.retry) & is_settled(error, cfg))
     return engaged, engaged & torch.where(forwards, to_reverse, ~to_forwards)
 
 
