@@ -5,8 +5,8 @@ distilled into one network that drives the paper's env alone.
                                              [--epochs 32] [--dagger-epochs 16]
                                              [--approach 32768] [--seed 0] [--overwrite]
                                              [--planner] [--clearance-features]
-                                             [--position] [--settle 0.05] [--lr-decay]
-                                             [--width 512] [--depth 3]
+                                             [--position] [--settle 0.05] [--retry 1]
+                                             [--lr-decay] [--width 512] [--depth 3]
 
 Each iteration runs a driver in lots at every occupancy level, half the starts near the
 goal: the teacher in the first (behaviour cloning), the current student in the later ones
