@@ -20,6 +20,7 @@ from torchpark import (
     NearGoalStarts,
     ParkingConfig,
     ParkingEnv,
+    RewardConfig,
     VehicleConfig,
 )
 from torchpark.aids.docking import (
@@ -31,6 +32,7 @@ from torchpark.aids.docking import (
     take_over,
 )
 from torchpark.runner import run_episodes
+from torchpark.sim.reward import is_success, parking_cost
 from torchpark.sim.vehicle import bicycle_step
 
 # Every start within 0.1 m and 0.1 rad of the slot axis, 0-6 m behind the goal.
@@ -218,6 +220,7 @@ def test_with_retry_a_near_miss_at_the_goal_backs_out_and_passes_the_test():
     heading = torch.tensor([-6e-3, 4e-3, -1e-2, -2e-3, 2e-4])  # the last one: fine
     start = torch.stack((torch.full_like(lateral, 5e-4), -lateral, heading), -1)
     goal = torch.zeros_like(start)
+    reward = RewardConfig()
 
     def passes(law: DockingConfig, steps: int = 600) -> torch.Tensor:
         pose, v = start, torch.full_like(lateral, 1e-3)
@@ -227,10 +230,9 @@ def test_with_retry_a_near_miss_at_the_goal_backs_out_and_passes_the_test():
             v, delta, engaged, reversing = take_over(pose, goal, v, v, engaged, reversing,
                                                      torch.zeros_like(engaged), law, vehicle)
             pose = bicycle_step(pose, v, delta, vehicle)
-            error = error_from_goal(pose, goal)
-            cost = (0.35 * (error.remaining.abs() + error.lateral.abs())
-                    + 0.2 * error.heading.abs() + 0.1 * v.abs())
-            passed |= cost < 4e-4
+            cost = parking_cost(goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1], pose[:, 2],
+                                goal[:, 2], v, reward)
+            passed |= is_success(cost, reward.success_threshold)
         return passed
 
     # creeping back and forth at the goal cannot move the car sideways: only the fine one

@@ -218,12 +218,11 @@ class Teacher:
         if self.aids is None or (self.aids.docking is None and self.aids.brake is None):
             raise ValueError(f"teacher {path!r} has neither the brake nor the docking law: "
                              f"distil a hybrid agent")
-        for name, value in (("settle", settle), ("retry", retry)):
-            if value and self.aids.docking is None:
-                raise ValueError(f"teacher {path!r} has no docking law to {name} with: "
-                                 f"drop --{name}")
         given = {name: value for name, value in (("settle", settle), ("retry", retry)) if value}
         if given:
+            if self.aids.docking is None:
+                raise ValueError(f"teacher {path!r} has no docking law to {next(iter(given))} "
+                                 f"with: drop --{next(iter(given))}")
             self.aids = dataclasses.replace(self.aids, docking=dataclasses.replace(
                 self.aids.docking, **given))
         self.actor = make_policy(cfg, checkpoint["actor"])

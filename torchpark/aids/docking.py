@@ -65,18 +65,16 @@ def in_settle(error: GoalError, cfg: DockingConfig) -> Tensor:
 
 def is_fine(error: GoalError, cfg: DockingConfig) -> Tensor:
     """Whether creeping along the axis can still pass the test, bool [...]: within
-    ``finish_lateral`` m and ``finish_heading`` rad of the slot axis (always with ``retry``
-    0)."""
-    return ((error.lateral.abs() < cfg.finish_lateral)
-            & (error.heading.abs() < cfg.finish_heading)) | (cfg.retry == 0)
+    ``finish_lateral`` m and ``finish_heading`` rad of the slot axis."""
+    return (error.lateral.abs() < cfg.finish_lateral) & (error.heading.abs() < cfg.finish_heading)
 
 
 def in_creep(error: GoalError, reversing: Tensor, cfg: DockingConfig) -> Tensor:
-    """Where the law creeps to the goal whatever its pass, bool [...]: :func:`in_settle`,
-    and :func:`is_fine` unless short of the goal and driving in (``reversing``: bool
-    [...]). Past the goal or backing away from it with errors the test cannot pass, the law
-    takes another pass instead (``DockingConfig.retry``)."""
-    return in_settle(error, cfg) & (is_fine(error, cfg)
+    """Where the law creeps to the goal whatever its pass, bool [...]: :func:`in_settle`;
+    with ``retry`` > 0 also :func:`is_fine`, unless short of the goal and driving in
+    (``reversing``: bool [...]). Past the goal or backing away from it with errors the test
+    cannot pass, the law then takes another pass instead (``DockingConfig.retry``)."""
+    return in_settle(error, cfg) & ((cfg.retry == 0) | is_fine(error, cfg)
                                     | ((error.remaining >= 0.0) & ~reversing))
 
 
