@@ -184,12 +184,15 @@ def test_the_planner_teacher_drives_the_planner_then_the_law_in_its_target(teach
     assert not teacher.state.docking_engaged.any()  # back at the start: the planner drives
 
 
-def test_the_planner_needs_the_teachers_law(tmp_path):
+def test_the_planner_settle_and_retry_need_the_teachers_law(tmp_path):
     brake_only = [o for o in HYBRID if o != "agent.docking=true"]
     path = write_checkpoint(tmp_path / "brake.pt", brake_only)
     with pytest.raises(ValueError, match="no docking law to take over from the planner"):
         Teacher(path, TransformedEnv(ParkingEnv(2, seed=0)),
                 planner=COARSE_PLAN)
+    for name in ("settle", "retry"):
+        with pytest.raises(ValueError, match=f"no docking law to {name} with: drop --{name}"):
+            Teacher(path, TransformedEnv(ParkingEnv(2, seed=0)), **{name: 0.05})
 
 
 def test_the_inverse_power_map_gives_what_the_map_turns_into_the_control():
