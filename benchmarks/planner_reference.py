@@ -3,12 +3,14 @@ paper's uniform starts.
 
     python benchmarks/planner_reference.py [--envs 200] [--occupancies 0 0.2 0.4 0.6 0.8 0.9]
         [--no-brake] [--steer-clear 5] [--seed 12345]
+        [--law-reach 8] [--law-lateral 2] [--law-heading 1]
 
 The lot's geometry is the same in every env and a parked car lies inside its slot, so a path
 that keeps the car off every slot but its goal's is clear at every occupancy. The planner
 (``torchpark.aids.planner``, ``PlannerConfig``'s defaults) computes once the cost-to-go of
 such paths to each slot's lined-up approach; every step of dt it drives the arc that
-descends it, until the docking law (its funnel set to the planner's target) takes over. The
+descends it, until the docking law takes over (in its funnel: the planner's target, or
+wider with ``--law-*``: ``PlannerConfig.law_funnel``). The
 policy's action is ignored: this is an agent of two hand-written layers, a reference for
 what a learned approach could reach, and a teacher whose approach needs no brake. It prints
 the tables' build time and, per occupancy, the success at the three thresholds, collision,
@@ -44,11 +46,17 @@ def main() -> None:
                         default=[0.0, 0.2, 0.4, 0.6, 0.8, 0.9])
     add_brake_options(parser)
     parser.add_argument("--seed", type=int, default=12345)
+    for bound, unit in (("reach", "m"), ("lateral", "m"), ("heading", "rad")):
+        parser.add_argument(f"--law-{bound}", type=float, default=None,
+                            help=f"the docking law's funnel ({unit}; default: the planner "
+                                 f"target's {bound})")
     args = parser.parse_args()
-    plan = PlannerConfig()
-    aids = AidsConfig(docking=DockingConfig(reach=plan.reach, lateral=plan.lateral,
-                                            heading=plan.heading),
-                      brake=brake_of(args))
+    try:
+        plan = PlannerConfig(law_reach=args.law_reach, law_lateral=args.law_lateral,
+                             law_heading=args.law_heading)
+    except ValueError as err:
+        parser.error(str(err))
+    aids = AidsConfig(docking=plan.law_funnel(DockingConfig()), brake=brake_of(args))
     started = time.perf_counter()
     config = ParkingConfig()
     planner = build_planner(build_layout(config.lot, config.vehicle), config.vehicle, plan)

@@ -184,6 +184,44 @@ def test_the_planner_teacher_drives_the_planner_then_the_law_in_its_target(teach
     assert not teacher.state.docking_engaged.any()  # back at the start: the planner drives
 
 
+def test_a_wider_law_funnel_takes_over_from_the_planner_off_its_target(teacher_path):
+    paper = ParkingEnv(16, seed=3, config=ParkingConfig(occupancy=0.9))
+    env = TransformedEnv(paper)
+    target = Teacher(teacher_path, env, planner=COARSE_PLAN)
+    wide = Teacher(teacher_path, env, planner=dataclasses.replace(
+        COARSE_PLAN, law_reach=8.0, law_lateral=2.0, law_heading=1.0))
+    law = wide.aids.docking
+    assert (law.reach, law.lateral, law.heading) == (8.0, 2.0, 1.0)
+    paper.reset()
+    sim = paper.state
+    goal = sim.goal
+    # 7.5 m behind each goal, 1.5 m off its axis, turned 0.6 rad: outside the target
+    axis, side = goal[:, 2], goal[:, 2] + torch.pi / 2
+    off = torch.stack((goal[:, 0] - 7.5 * torch.cos(axis) + 1.5 * torch.cos(side),
+                       goal[:, 1] - 7.5 * torch.sin(axis) + 1.5 * torch.sin(side),
+                       axis + 0.6), -1)
+    obs = paper.set_state(sim._replace(pose=off, speed=torch.zeros(16)))["observation"]
+    target.label(obs)
+    label = wide.label(obs)
+    assert not target.state.docking_engaged.any() and wide.state.docking_engaged.all()
+    law_v, law_delta = docking_action(error_from_goal(off, goal),
+                                      torch.zeros(16, dtype=torch.bool), law,
+                                      paper.config.vehicle)
+    free = ~wide.intervened
+    assert free.any()
+    assert torch.equal(label[free], torch.stack((law_v, law_delta), -1)[free])
+
+
+def test_the_laws_funnel_needs_the_planner():
+    with pytest.raises(ValueError, match=r"DistillConfig.law_lateral must be None without "
+                                         "planner"):
+        DistillConfig(law_lateral=2.0)
+    with pytest.raises(ValueError, match=r"PlannerConfig.law_heading must be None or "
+                                         r"finite, in \[heading = 0.25"):
+        DistillConfig(planner=True, law_heading=0.1)
+    assert DistillConfig(planner=True, law_reach=8.0).planner_config().law_reach == 8.0
+
+
 def test_the_planner_settle_and_retry_need_the_teachers_law(tmp_path):
     brake_only = [o for o in HYBRID if o != "agent.docking=true"]
     path = write_checkpoint(tmp_path / "brake.pt", brake_only)

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from tests.conftest import polygon
-from torchpark import PlannerConfig, VehicleConfig
+from torchpark import DockingConfig, PlannerConfig, VehicleConfig
 from torchpark.aids.planner import (
     arcs,
     build_planner,
@@ -158,7 +158,21 @@ def test_plan_control_drives_at_the_planner_speed_with_its_angles(planner, layou
                                           ("clearance", -0.1), ("band_cost", math.nan),
                                           ("slot_cost", 0.5), ("slot_cost", math.nan),
                                           ("reach_min", 8.0), ("speed", -2.0),
-                                          ("control_step", 0.0)])
+                                          ("control_step", 0.0), ("law_reach", 6.0),
+                                          ("law_lateral", 0.4), ("law_heading", 4.0),
+                                          ("law_heading", math.nan), ("law_reach", True),
+                                          ("law_lateral", math.inf)])
 def test_bad_planner_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=f"PlannerConfig.{field}"):
         PlannerConfig(**{field: value})
+
+
+def test_the_laws_funnel_is_the_target_unless_widened():
+    law = DockingConfig(gain=9.0, settle=0.05)
+    target = PlannerConfig().law_funnel(law)
+    assert (target.reach, target.lateral, target.heading) == (7.0, 0.5, 0.25)
+    wide = PlannerConfig(law_reach=8.0, law_lateral=2.0, law_heading=1.0).law_funnel(law)
+    assert (wide.reach, wide.lateral, wide.heading) == (8.0, 2.0, 1.0)
+    assert (wide.gain, wide.settle) == (9.0, 0.05)  # the rest of the law is kept
+    only = PlannerConfig(law_lateral=2.0).law_funnel(law)
+    assert (only.reach, only.lateral, only.heading) == (7.0, 2.0, 0.25)

@@ -131,7 +131,9 @@ class DistillConfig:
     the student also reads the gap along each LIDAR ray (torchpark.ClearanceFeatures);
     ``position``: and its position in the lot (torchpark.AidsConfig.observe_position);
     ``planner``: the teacher's policy is replaced by the approach planner
-    (:mod:`torchpark.aids.planner`), the docking law's funnel by the planner's target;
+    (:mod:`torchpark.aids.planner`), the docking law's funnel by the planner's target, or
+    by ``law_reach`` m, ``law_lateral`` m and ``law_heading`` rad where given
+    (:meth:`~torchpark.aids.config.PlannerConfig.law_funnel`);
     ``settle``: the teacher's law creeps back to the goal from up to ``settle`` m past it
     (:attr:`~torchpark.aids.config.DockingConfig.settle`), where it would reverse a whole
     pass; ``retry``: only where the test can still pass, else it reverses ``retry`` m and
@@ -167,6 +169,9 @@ class DistillConfig:
     planner: bool = False
     settle: float = 0.0
     retry: float = 0.0
+    law_reach: float | None = None
+    law_lateral: float | None = None
+    law_heading: float | None = None
     release: float | None = None
     width: int | None = None
     depth: int | None = None
@@ -197,10 +202,22 @@ class DistillConfig:
                     value)
         if self.release is not None:
             positive("DistillConfig.release", self.release)
+        for name in ("law_reach", "law_lateral", "law_heading"):
+            require(self.planner or getattr(self, name) is None, f"DistillConfig.{name}",
+                    "None without planner (the law's funnel where it takes over from the "
+                    "planner)", getattr(self, name))
+        self.planner_config()  # refuses a funnel that does not hold the planner's target
         for name, high in (("width", 4096), ("depth", 8)):
             value = getattr(self, name)
             require(value is None or 1 <= value <= high, f"DistillConfig.{name}",
                     f"None or an int in [1, {high}]", value)
+
+    def planner_config(self) -> PlannerConfig | None:
+        """The teacher's approach planner (None without ``planner``)."""
+        if not self.planner:
+            return None
+        return PlannerConfig(law_reach=self.law_reach, law_lateral=self.law_lateral,
+                             law_heading=self.law_heading)
 
 
 class Teacher:
@@ -227,16 +244,15 @@ class Teacher:
                 self.aids.docking, **given))
         self.actor = make_policy(cfg, checkpoint["actor"])
         self.base = env.base_env
-        # With the planner, it drives where the checkpoint's policy did, up to its target,
-        # which becomes the docking law's funnel.
+        # With the planner, it drives where the checkpoint's policy did, up to the docking
+        # law's funnel (PlannerConfig.law_funnel).
         self.planner = None
         if planner is not None:
             if self.aids.docking is None:
                 raise ValueError(f"teacher {path!r} has no docking law to take over from the "
                                  f"planner: drop --planner")
-            self.aids = dataclasses.replace(self.aids, docking=dataclasses.replace(
-                self.aids.docking, reach=planner.reach, lateral=planner.lateral,
-                heading=planner.heading))
+            self.aids = dataclasses.replace(self.aids,
+                                            docking=planner.law_funnel(self.aids.docking))
             self.planner = build_planner(self.base.layout, self.base.config.vehicle, planner)
         # The teacher's own input transforms (goal features, brake flag) with its frozen
         # normaliser, applied outside an env.
@@ -503,8 +519,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     # outside the env to the final-approach states.
     features = Compose(*[t.clone() for t in inputs[:-1]
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
-    teacher = Teacher(teacher_path, env, cfg.release, PlannerConfig() if cfg.planner else None,
-                      cfg.settle, cfg.retry)
+    teacher = Teacher(teacher_path, env, cfg.release, cfg.planner_config(), cfg.settle,
+                      cfg.retry)
     if cfg.approach and teacher.aids.docking is None:
         raise ValueError(f"teacher {teacher_path!r} has no docking law to label the final "
                          f"approach with: pass --approach 0")
@@ -520,6 +536,11 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     made_of = f" ({', '.join(parts)})" if parts else ""
     source = f"the approach planner with the aids of {teacher_path}" if cfg.planner \
         else f"the hybrid {teacher_path}"
+    plan = cfg.planner_config()
+    if plan is not None and plan != PlannerConfig():
+        funnel = plan.law_funnel(DockingConfig())
+        source += (f" (its law taking over within {funnel.reach:g} m behind the goal, "
+                   f"{funnel.lateral:g} m and {funnel.heading:g} rad of its axis)")
     if cfg.settle:
         source += f" (its law creeping to the goal within {cfg.settle:g} m"
         source += f", retrying {cfg.retry:g} m back where the test cannot pass)" if cfg.retry \

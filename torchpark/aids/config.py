@@ -5,6 +5,7 @@ is the paper's task. Units: metres, seconds, radians.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -137,7 +138,11 @@ class PlannerConfig:
     the slot axis from the goal, within ``lateral`` m and ``heading`` rad of it. It drives at
     ``speed`` m/s, looking ahead two arcs of ``control_step`` m; a gear change costs
     ``switch_cost`` m; reading the cost between cells, one no path leaves counts
-    ``blocked_cost`` m dearer than the others."""
+    ``blocked_cost`` m dearer than the others. The docking law takes over from it within
+    ``law_reach`` m behind the goal, ``law_lateral`` m of the slot axis and ``law_heading``
+    rad of the goal's heading (:meth:`law_funnel`; None: the target's bound); a funnel
+    wider than the target hands over to the law where the planner's arcs would circle a
+    slot off a narrow lane (docs/experiments.md)."""
 
     cell: float = 0.5  # m
     headings: int = 64
@@ -156,11 +161,19 @@ class PlannerConfig:
     reach: float = 7.0  # m
     lateral: float = 0.5  # m
     heading: float = 0.25  # rad
+    law_reach: float | None = None  # m
+    law_lateral: float | None = None  # m
+    law_heading: float | None = None  # rad
 
     def __post_init__(self) -> None:
         check_types(self)
         for name in ("cell", "step", "control_step", "speed", "reach", "lateral", "heading"):
             positive(f"PlannerConfig.{name}", getattr(self, name))
+        for name, high in (("reach", math.inf), ("lateral", math.inf), ("heading", math.pi)):
+            value, low = getattr(self, f"law_{name}"), getattr(self, name)
+            require(value is None or (low <= value <= high and math.isfinite(value)),
+                    f"PlannerConfig.law_{name}", f"None or finite, in [{name} = {low:g}, "
+                    f"{high:g}] (the funnel holds the target)", value)
         require(8 <= self.headings <= 1024, "PlannerConfig.headings", "an int in [8, 1024]",
                 self.headings)
         require(2 <= self.steers <= 64, "PlannerConfig.steers", "an int in [2, 64]",
@@ -174,6 +187,13 @@ class PlannerConfig:
                 self.slot_cost)
         require(self.reach_min < self.reach, "PlannerConfig.reach_min",
                 f"< reach = {self.reach}", self.reach_min)
+
+    def law_funnel(self, law: DockingConfig) -> DockingConfig:
+        """``law`` with the funnel it takes over from the planner in: the ``law_*`` bounds,
+        the target's where None."""
+        return dataclasses.replace(law, **{
+            name: getattr(self, name) if getattr(self, f"law_{name}") is None
+            else getattr(self, f"law_{name}") for name in ("reach", "lateral", "heading")})
 
 
 @dataclass(frozen=True)
