@@ -519,8 +519,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     # outside the env to the final-approach states.
     features = Compose(*[t.clone() for t in inputs[:-1]
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
-    teacher = Teacher(teacher_path, env, cfg.release, cfg.planner_config(), cfg.settle,
-                      cfg.retry)
+    plan = cfg.planner_config()
+    teacher = Teacher(teacher_path, env, cfg.release, plan, cfg.settle, cfg.retry)
     if cfg.approach and teacher.aids.docking is None:
         raise ValueError(f"teacher {teacher_path!r} has no docking law to label the final "
                          f"approach with: pass --approach 0")
@@ -536,7 +536,6 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     made_of = f" ({', '.join(parts)})" if parts else ""
     source = f"the approach planner with the aids of {teacher_path}" if cfg.planner \
         else f"the hybrid {teacher_path}"
-    plan = cfg.planner_config()
     if plan is not None and plan != PlannerConfig():
         funnel = plan.law_funnel(DockingConfig())
         source += (f" (its law taking over within {funnel.reach:g} m behind the goal, "
