@@ -13,6 +13,7 @@ from torch import Tensor
 from torchpark.aids.config import BrakeConfig
 from torchpark.config import ParkingConfig, VehicleConfig
 from torchpark.sim.geometry import OrientedBoxes, separation
+from torchpark.sim.records import replace
 from torchpark.sim.step import move
 from torchpark.sim.vehicle import vehicle_obb
 from torchpark.sim.world import World, touches_obstacle
@@ -45,8 +46,8 @@ def fence(pose: Tensor, vehicle: VehicleConfig, margin: float) -> OrientedBoxes:
     """The vehicle's boxes at rear-axle poses [..., 3], grown by ``margin`` m on every side
     (same centre and heading): what the brake keeps clear with :attr:`BrakeConfig.margin`."""
     box = vehicle_obb(pose, vehicle)
-    return box._replace(half_length=box.half_length + margin,
-                        half_width=box.half_width + margin)
+    return replace(box, half_length=box.half_length + margin,
+                   half_width=box.half_width + margin)
 
 
 def goal_room(world: World, vehicle: VehicleConfig, margin: float = 0.0) -> float:

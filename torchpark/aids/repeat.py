@@ -9,6 +9,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
+from torchpark.sim.records import replace
 from torchpark.sim.step import StepResult, mux_rows
 
 StepFn = Callable[[tuple, Tensor], tuple[tuple, StepResult, Tensor]]
@@ -22,8 +23,8 @@ def merge_steps(state: tuple, out: StepResult, new_state: tuple, new_out: StepRe
     have ended the held action)."""
     live = ~out.done[:, 0]
     merged = mux_rows(live, new_out, out)
-    return mux_rows(live, new_state, state), merged._replace(
-        reward=out.reward + torch.where(live[:, None], new_out.reward, 0.0),
+    return mux_rows(live, new_state, state), replace(
+        merged, reward=out.reward + torch.where(live[:, None], new_out.reward, 0.0),
         cost=torch.minimum(out.cost, merged.cost))
 
 

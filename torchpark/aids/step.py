@@ -16,6 +16,7 @@ from torchpark.aids.starts import NearDraw, near_start
 from torchpark.config import ParkingConfig
 from torchpark.sim.episodes import LotDraw
 from torchpark.sim.observation import observe
+from torchpark.sim.records import replace
 from torchpark.sim.step import ParkingState, StepResult, commit, move, new_lots
 from torchpark.sim.vehicle import clamp_action
 from torchpark.sim.world import World
@@ -96,8 +97,8 @@ def aided_step(state: AidedState, action: Tensor, world: World, steer_angles: Te
     control = aided_control(state, action, world, steer_angles, cfg, aids)
     sim, out = commit(state.sim, control.pose, control.speed, control.collision, world, cfg)
     if aids.brake is not None:
-        out = out._replace(reward=out.reward + torch.where(control.intervened[:, None],
-                                                           aids.brake.penalty, 0.0))
+        out = replace(out, reward=out.reward + torch.where(control.intervened[:, None],
+                                                          aids.brake.penalty, 0.0))
     return AidedState(sim, control.aids), out, action.isfinite().all()
 
 
@@ -108,7 +109,7 @@ def aided_new_episodes(lots: LotDraw, near: NearDraw | None, world: World, cfg: 
     start where it asks."""
     fresh = new_lots(lots, world, cfg)
     if near is not None:
-        fresh = fresh._replace(pose=near_start(fresh.pose, near, fresh.goal, fresh.present,
+        fresh = replace(fresh, pose=near_start(fresh.pose, near, fresh.goal, fresh.present,
                                                world, cfg))
     return (AidedState(fresh, AidState.zeros(fresh.pose.shape[0], fresh.pose.device)),
             *observe(fresh, world, cfg))

@@ -19,6 +19,7 @@ from torch import Tensor
 from torchpark.config import ParkingConfig
 from torchpark.sim.episodes import LotDraw, choose_start, occupied_slots
 from torchpark.sim.observation import observe
+from torchpark.sim.records import replace
 from torchpark.sim.reward import is_success, parking_reward
 from torchpark.sim.vehicle import bicycle_step, clamp_action, vehicle_obb
 from torchpark.sim.world import World, touches_obstacle
@@ -98,7 +99,7 @@ def commit(state: ParkingState, pose: Tensor, speed: Tensor, collision: Tensor, 
     touched an obstacle where ``collision`` (N,), and what the step emits: observation,
     Table-1 reward, and the episode's end (success or collision terminates, max_steps
     truncates)."""
-    state = state._replace(pose=pose, speed=speed, steps=state.steps + 1)
+    state = replace(state, pose=pose, speed=speed, steps=state.steps + 1)
     observation, cost = observe(state, world, cfg)
     success = is_success(cost, world.success_threshold)
     reward = parking_reward(cost, collision, success, cfg.reward)
