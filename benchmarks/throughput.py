@@ -133,15 +133,19 @@ def collector_frames(num_envs: int, device: str, mode: str, args):
     of dt) in that batch."""
     from torchrl.collectors import Collector
 
-    from trainers.config import load_config
+    from trainers.config import PRESETS, load_config
     from trainers.utils import NORMALISED, make_ppo_models
     from trainers.utils import make_env as make_train_env
 
     if mode == "cudagraphs":
         raise ValueError("the fast preset compiles without CUDA graphs")
+    # The preset's batch (1,024 envs x 32 actions) is no multiple of N x its action repeat
+    # past N = 32,768: the batch here is N x --horizon actions.
+    frames = PRESETS["fast"]().agent.action_repeat * args.horizon * num_envs
     cfg = load_config("fast", [f"env.num_envs={num_envs}", f"env.device={device}",
                                f"env.compile_step={mode == 'compiled'}",
-                               f"curriculum.levels=[{args.occupancy}]"])
+                               f"curriculum.levels=[{args.occupancy}]",
+                               f"collector.frames_per_batch={frames}"])
     env = make_train_env(cfg)
     actor, _ = make_ppo_models(env.observation_spec[NORMALISED].shape[-1], env.action_spec,
                                cfg.model)
@@ -154,7 +158,7 @@ def collector_frames(num_envs: int, device: str, mode: str, args):
     def call() -> None:
         next(batches)
 
-    return call, cfg.agent.action_repeat * args.horizon * num_envs
+    return call, frames
 
 
 CALLS = {"step": step_call, "step_and_maybe_reset": step_and_maybe_reset_call,
