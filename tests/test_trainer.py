@@ -269,6 +269,47 @@ def test_evaluation_table_has_the_stated_columns(smoke_run, tmp_path):
     assert iio.improps(tmp_path / "rollout_occ90.mp4").shape[1:] == (384, 480, 3)
 
 
+def test_evaluation_puts_a_policy_under_other_aids(smoke_run, tmp_path):
+    """--aids: the smoke run's policy alone evaluated as the approach of a hybrid (brake +
+    docking law), said so in the table; the same lots as without them."""
+    _, final = smoke_run
+    aids = ["emergency_brake=true", "steer_clear=5", "docking=true", "docking_lateral=2.0",
+            "docking_heading=1.0"]
+    plain = evaluate(str(final), episodes=6, levels=(0.9,))[0]
+    aided = evaluate(str(final), episodes=6, levels=(0.9,), aids=aids)[0]
+    assert (plain["agent"], plain["brake"], plain["docking_law"]) == (
+        "policy alone", "off", "off")
+    assert aided["agent"] == ("hybrid: policy + emergency brake + docking law, added at "
+                              "evaluation")
+    assert aided["brake"] == "steers clear (5 angles)"
+    assert aided["docking_law"] == "0-8 m behind the goal, +-2 m, +-1 rad"
+    assert aided["collision"] == 0.0  # the brake stops every colliding step
+    assert aided["policy"] == plain["policy"]  # the same network
+    evaluate_main([str(final), "--episodes", "2", "--out", str(tmp_path), "--videos", "none",
+                   "--aids", *aids])
+    assert (tmp_path / "evaluation.md").read_text().startswith(
+        "agent: hybrid: policy + emergency brake + docking law, added at evaluation")
+
+
+@pytest.mark.parametrize(("aids", "message"), [
+    (["observe_brake=true"], "--aids takes NAME=VALUE with NAME one of emergency_brake"),
+    (["docking"], "--aids takes NAME=VALUE"),
+    (["steer_clear=5"], "agent.steer_clear must be 0 without agent.emergency_brake"),
+    (["steer_clear=True", "emergency_brake=true"], "agent.steer_clear: Value 'True'"),
+    (["docking_lateral=2.0"], "agent.docking_lateral must be 4 (its default) without "
+                              "agent.docking"),
+    (["docking=true", "docking_reach=nan"], "DockingConfig.reach must be a finite number > 0"),
+    (["docking=true", "docking_heading=-1"], "DockingConfig.heading"),
+])
+def test_evaluation_refuses_bad_aids_by_name(smoke_run, tmp_path, capsys, aids, message):
+    _, final = smoke_run
+    with pytest.raises(SystemExit) as refused:
+        evaluate_main([str(final), "--episodes", "2", "--out", str(tmp_path), "--videos",
+                       "none", "--aids", *aids])
+    assert refused.value.code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "evaluation.md").exists()
+
+
 def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     """Every training option off the paper's path at once: held actions, the cubic speed map,
     near-goal starts, the emergency brake, a state-dependent std, the success curriculum,

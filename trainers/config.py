@@ -259,16 +259,21 @@ def load_config(preset: str, overrides: list[str] | None = None) -> TrainConfig:
     """The preset's config with dot-notation overrides applied and checked."""
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
-    base = OmegaConf.structured(PRESETS[preset]())
+    cfg = override(PRESETS[preset](), overrides or [])
+    _check(cfg)
+    return cfg
+
+
+def override(cfg: TrainConfig, overrides: list[str]) -> TrainConfig:
+    """A copy of ``cfg`` with dot-notation overrides applied, their types checked (OmegaConf);
+    a ValueError names the field of an unknown key or a wrong type. Ranges: the caller's."""
     try:
-        merged = OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides or [])))
-        cfg: TrainConfig = OmegaConf.to_object(merged)
+        merged = OmegaConf.merge(OmegaConf.structured(cfg), OmegaConf.from_dotlist(overrides))
+        return OmegaConf.to_object(merged)
     except OmegaConfBaseException as err:  # a type error or an unknown key, by dot name
         key = getattr(err, "full_key", None)
         message = getattr(err, "msg", None) or str(err).splitlines()[0]
         raise ValueError(f"{key}: {message}" if key else message) from None
-    _check(cfg)
-    return cfg
 
 
 def env_configs(cfg: TrainConfig, training: bool) -> tuple[ParkingConfig, AidsConfig | None]:
@@ -387,7 +392,24 @@ def _check(cfg: TrainConfig) -> None:
              c.success_window)
     _require(cfg.seed >= 0, "seed", "an int >= 0", cfg.seed)
     check_device(cfg.env.device, "env.device")
-    for training in (True, False):  # the env's fields, as torchpark checks them
+    check_agent(cfg)
+    n, batch, k = cfg.env.num_envs, cfg.collector.frames_per_batch, cfg.agent.action_repeat
+    if n < 1:
+        raise ValueError(f"env.num_envs must be >= 1, got {n}")
+    if batch < n * k or batch % (n * k):
+        raise ValueError(f"collector.frames_per_batch must be a multiple of env.num_envs x "
+                         f"agent.action_repeat = {n * k}, got {batch}")
+    _require(cfg.collector.total_frames >= batch, "collector.total_frames",
+             f">= collector.frames_per_batch = {batch}", cfg.collector.total_frames)
+    if not 1 <= cfg.loss.mini_batch_size <= batch // k:
+        raise ValueError(f"loss.mini_batch_size must be in [1, frames_per_batch / action_repeat"
+                         f" = {batch // k}], got {cfg.loss.mini_batch_size}")
+    _check_dist(cfg)
+
+
+def check_agent(cfg: TrainConfig) -> None:
+    """The env's fields as torchpark checks them, and the agent's aids against each other."""
+    for training in (True, False):
         try:
             env_configs(cfg, training)
         except (TypeError, ValueError) as err:
@@ -402,18 +424,10 @@ def _check(cfg: TrainConfig) -> None:
              "0 without agent.emergency_brake", cfg.agent.steer_clear)
     _require(cfg.agent.brake_margin == 0 or cfg.agent.emergency_brake, "agent.brake_margin",
              "0 without agent.emergency_brake", cfg.agent.brake_margin)
-    n, batch, k = cfg.env.num_envs, cfg.collector.frames_per_batch, cfg.agent.action_repeat
-    if n < 1:
-        raise ValueError(f"env.num_envs must be >= 1, got {n}")
-    if batch < n * k or batch % (n * k):
-        raise ValueError(f"collector.frames_per_batch must be a multiple of env.num_envs x "
-                         f"agent.action_repeat = {n * k}, got {batch}")
-    _require(cfg.collector.total_frames >= batch, "collector.total_frames",
-             f">= collector.frames_per_batch = {batch}", cfg.collector.total_frames)
-    if not 1 <= cfg.loss.mini_batch_size <= batch // k:
-        raise ValueError(f"loss.mini_batch_size must be in [1, frames_per_batch / action_repeat"
-                         f" = {batch // k}], got {cfg.loss.mini_batch_size}")
-    _check_dist(cfg)
+    for name in ("docking_reach", "docking_lateral", "docking_heading"):
+        value, default = getattr(cfg.agent, name), getattr(AgentConfig, name)
+        _require(cfg.agent.docking or value == default, f"agent.{name}",
+                 f"{default:g} (its default) without agent.docking", value)
 
 
 def _check_dist(cfg: TrainConfig) -> None:
@@ -441,4 +455,4 @@ def _check_dist(cfg: TrainConfig) -> None:
              "are not shared within a batch)", cfg.curriculum.success_start)
 
 
-__all__ = ["PRESETS", "TrainConfig", "load_config", "replace"]
+__all__ = ["PRESETS", "TrainConfig", "check_agent", "load_config", "override", "replace"]

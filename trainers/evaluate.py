@@ -1,7 +1,7 @@
 """Per-occupancy evaluation of a checkpoint, beside the paper's Table 2.
 
     python -m trainers.evaluate CHECKPOINT [--episodes 200] [--out DIR] [--seed 1]
-                                           [--videos mp4|gif|none]
+                                           [--videos mp4|gif|none] [--aids NAME=VALUE ...]
 
 Runs the deterministic policy (the TanhNormal's mode) for ``--episodes`` episodes at each
 occupancy level on lots the training never drew (its own seed; the same goals and starts at
@@ -12,7 +12,10 @@ mean episode length, the failure modes (grazing collisions, freezing: see
 torchpark.runner; braked: episodes in which the emergency brake, when on, stopped a step;
 docked: episodes the docking law, when on, drove to their end), and the median and 90th
 percentile of the final position and heading errors; with ``--videos`` (mp4 by default) also
-one rollout video per level.
+one rollout video per level. ``--aids`` puts the checkpoint's policy under other agent-side
+aids than it was trained with (EVALUATION_AIDS: the brake and the docking law, which act
+around the network and leave its input and output as trained), e.g. a policy alone as the
+approach of a hybrid: ``--aids emergency_brake=true steer_clear=5 docking=true``.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from torchpark.curriculum import PAPER_LEVELS
 from torchpark.media.recording import record_video
 from torchpark.runner import Episodes, run_episodes
 from trainers.checkpoint import load_checkpoint
-from trainers.config import TrainConfig, check_device, upgrade_saved
+from trainers.config import TrainConfig, check_agent, check_device, override, upgrade_saved
 from trainers.utils import make_eval_env, make_policy
 
 # Table 2 of the paper: success rate per curriculum phase (occupancy level).
@@ -45,6 +48,9 @@ RESULTS = ("occupancy", "episodes", "success", "success_4e-3", "success_4e-2", "
            "pos_err_median_m", "pos_err_p90_m", "heading_err_median_deg", "heading_err_p90_deg",
            "paper_success")
 COLUMNS = COMPOSITION + RESULTS
+# The agent's fields (trainers.config.AgentConfig) --aids may set: aids around the network.
+EVALUATION_AIDS = ("emergency_brake", "steer_clear", "brake_margin", "docking",
+                   "docking_reach", "docking_lateral", "docking_heading")
 
 
 def load(path: str) -> tuple[TrainConfig, dict]:
@@ -60,19 +66,36 @@ def load(path: str) -> tuple[TrainConfig, dict]:
                          f"{str(err).splitlines()[0]}") from None
 
 
-def composition(cfg: TrainConfig, checkpoint: dict) -> dict[str, str | int]:
-    """What the evaluated agent is made of: the COMPOSITION columns."""
+def with_aids(cfg: TrainConfig, aids: list[str]) -> TrainConfig:
+    """``cfg`` with the agent's aids set by ``aids`` (``NAME=VALUE``, NAME one of
+    EVALUATION_AIDS), checked as the trainer checks them; ValueError naming the field."""
+    for item in aids:
+        name = item.split("=", 1)[0]
+        if "=" not in item or name not in EVALUATION_AIDS:
+            raise ValueError(f"--aids takes NAME=VALUE with NAME one of "
+                             f"{', '.join(EVALUATION_AIDS)}; got {item!r}")
+    cfg = override(cfg, [f"agent.{item}" for item in aids])
+    check_agent(cfg)
+    return cfg
+
+
+def composition(cfg: TrainConfig, checkpoint: dict, added: bool = False
+                ) -> dict[str, str | int]:
+    """What the evaluated agent is made of: the COMPOSITION columns (``added``: its aids were
+    given at evaluation, not in training)."""
     agent = cfg.agent
     brake = "off" if not agent.emergency_brake else (
         f"steers clear ({agent.steer_clear} angles)" if agent.steer_clear else "stops") + (
         f", keeps {agent.brake_margin:g} m" if agent.emergency_brake and agent.brake_margin
         else "")
-    law = (f"0-{agent.docking_reach:g} m behind the goal, +-{agent.docking_lateral:g} m"
-           if agent.docking else "off")
+    law = (f"0-{agent.docking_reach:g} m behind the goal, +-{agent.docking_lateral:g} m, "
+           f"+-{agent.docking_heading:.3g} rad" if agent.docking else "off")
     aids = [name for name, on in (("emergency brake", agent.emergency_brake),
                                   ("docking law", agent.docking)) if on]
     return {
-        "agent": "hybrid: policy + " + " + ".join(aids) if aids else "policy alone",
+        "agent": ("hybrid: policy + " + " + ".join(aids) + (", added at evaluation" if added
+                                                              else "")) if aids
+        else "policy alone",
         "brake": brake, "docking_law": law, "action_repeat": agent.action_repeat,
         "policy": checkpoint.get("trained_by")
         or f"PPO ({cfg.logger.exp_name} preset run), {checkpoint['frames']:,} frames",
@@ -112,19 +135,22 @@ def level_row(run: Episodes, occupancy: float) -> dict[str, float]:
 
 def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
              videos: Path | None = None, video_format: str = "mp4",
-             device: str | None = None) -> list[dict[str, float]]:
+             device: str | None = None, aids: list[str] | None = None
+             ) -> list[dict[str, float]]:
     """The table's rows, one per level; with ``videos``, also one rollout video per level
     (``rollout_occ{percent}.{video_format}``) of the deterministic policy in that directory.
     ``device``: where the envs and the policy run (default: the checkpoint's training
-    device)."""
+    device). ``aids``: NAME=VALUE settings of the agent's aids (:func:`with_aids`)."""
     cfg, checkpoint = load(path)
+    if aids:
+        cfg = with_aids(cfg, aids)
     if device is not None:
         cfg.env.device = device
     check_device(cfg.env.device, "the evaluation's device (the training's unless --device)")
     checkpoint = tree_map_only(torch.Tensor, lambda t: t.to(cfg.env.device), checkpoint)
     actor = make_policy(cfg, checkpoint["actor"])
     rows = []
-    made_of = composition(cfg, checkpoint)
+    made_of = composition(cfg, checkpoint, added=bool(aids))
     for level in levels:
         rows.append({**made_of,
                      **evaluate_level(actor, checkpoint, cfg, level, episodes, seed)})
@@ -175,6 +201,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="replace evaluation files already in --out (refused by default)")
     parser.add_argument("--device", default=None,
                         help="torch device of the envs and the policy (default: the training's)")
+    parser.add_argument("--aids", nargs="+", default=[], metavar="NAME=VALUE",
+                        help="put the policy under other aids: " + ", ".join(EVALUATION_AIDS))
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
@@ -191,7 +219,7 @@ def main(argv: list[str] | None = None) -> None:
         out.mkdir(parents=True, exist_ok=True)
         rows = evaluate(args.checkpoint, args.episodes, seed=args.seed,
                         videos=None if args.videos == "none" else out,
-                        video_format=args.videos, device=args.device)
+                        video_format=args.videos, device=args.device, aids=args.aids)
     except (ValueError, OSError) as err:
         parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
     print(write_tables(rows, out))
