@@ -1,12 +1,24 @@
-"""Training curves (trainers.plots): a resumed run's event files, and Stable-Baselines3's."""
+"""Training curves (trainers.plots): a resumed run's event files, Stable-Baselines3's, and a
+distillation's dagger.csv."""
 
 from __future__ import annotations
 
+import csv
+
 import matplotlib
 import numpy as np
+import pytest
 from torch.utils.tensorboard import SummaryWriter
 
-from trainers.plots import plot_losses, plot_training_curves, read_scalars
+from trainers.plots import (
+    DAGGER_CHECKS,
+    main,
+    plot_dagger,
+    plot_losses,
+    plot_training_curves,
+    read_dagger,
+    read_scalars,
+)
 
 matplotlib.use("Agg")
 
@@ -38,3 +50,36 @@ def test_a_resumed_runs_later_file_replaces_the_overlap(tmp_path):
     assert "loss/critic" in scalars
     assert len(plot_training_curves(scalars).axes) == 3
     assert len(plot_losses(scalars).axes) == 1
+
+
+def write_dagger(path, iterations: int) -> None:
+    """A dagger.csv as trainers.distill writes it: its checks rising over the iterations."""
+    keys = ["iteration", "loss", *(f"{p}_{t}" for p, _, _ in DAGGER_CHECKS
+                                   for t in ("0.0004", "0.004", "0.04", "collision"))]
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=keys)
+        writer.writeheader()
+        for i in range(iterations):
+            writer.writerow({k: i if k == "iteration" else (i + 1) / (iterations + 1)
+                             for k in keys})
+
+
+def test_a_distillation_gets_its_checks_per_iteration(tmp_path):
+    write_dagger(tmp_path / "dagger.csv", 4)
+    columns = read_dagger(tmp_path / "dagger.csv")
+    np.testing.assert_array_equal(columns["iteration"], [0, 1, 2, 3])
+    fig = plot_dagger(columns)
+    success, collision, loss = fig.axes
+    assert [line.get_label() for line in success.get_lines()] == [
+        label for _, label, _ in DAGGER_CHECKS]
+    np.testing.assert_allclose(collision.get_lines()[2].get_ydata(), [0.2, 0.4, 0.6, 0.8])
+    assert len(loss.get_lines()) == 1
+    main([str(tmp_path)])  # a run folder with a dagger.csv and no events: its curves
+    assert (tmp_path / "training_curves.png").stat().st_size > 10_000
+    assert not (tmp_path / "losses.png").exists()  # no PPO losses in a distillation
+
+
+def test_an_empty_dagger_csv_is_an_error_naming_it(tmp_path):
+    write_dagger(tmp_path / "dagger.csv", 0)
+    with pytest.raises(ValueError, match=r"dagger\.csv' holds no iteration"):
+        read_dagger(tmp_path / "dagger.csv")

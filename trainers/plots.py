@@ -1,16 +1,19 @@
-"""Training curves from a run's TensorBoard events: the paper's Figure 2 and the losses.
+"""Training curves from a run's TensorBoard events: the paper's Figure 2 and the losses; or
+a distillation's DAgger iterations.
 
     python -m trainers.plots RUN_DIR [--out DIR]
 
 Reads the event files with TensorBoard's own ``EventAccumulator`` and draws, against frames,
 mean episode reward, mean episode length and the success / collision / timeout rates, each
 phase of the curriculum shaded and labelled with its occupancy (``training_curves.png``), and
-the PPO loss terms (``losses.png``).
+the PPO loss terms (``losses.png``). A run of ``trainers.distill`` (a ``dagger.csv``, no
+events) gets ``training_curves.png`` of its checks and fit loss per iteration.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 from pathlib import Path
 
 import matplotlib
@@ -128,6 +131,43 @@ def plot_losses(scalars: Scalars, window: int = 10) -> Figure:
     return fig
 
 
+# trainers.distill's checks after each iteration (dagger.csv): success at the paper's test and
+# collisions, from the yardstick's near-goal starts and uniform starts at 0 and 90 %.
+DAGGER_CHECKS = (("yardstick", "near-goal starts, empty lot", "C0"),
+                 ("uniform_0", "uniform starts, empty lot", "C2"),
+                 ("uniform_90", "uniform starts, 90 %", "C3"))
+
+
+def read_dagger(path: str | Path) -> dict[str, np.ndarray]:
+    """A ``dagger.csv`` as column name -> values, one per iteration."""
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        raise ValueError(f"{str(path)!r} holds no iteration")
+    return {key: np.asarray([float(r[key]) for r in rows]) for key in rows[0]}
+
+
+def plot_dagger(columns: dict[str, np.ndarray]) -> Figure:
+    """Success at C < 4e-4 and collisions on the distiller's checks, and the fit's loss,
+    against the DAgger iteration (0: the behaviour clone)."""
+    it = columns["iteration"]
+    fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True, layout="constrained")
+    for prefix, label, colour in DAGGER_CHECKS:
+        axes[0].plot(it, columns[f"{prefix}_0.0004"], "o-", color=colour, label=label)
+        axes[1].plot(it, columns[f"{prefix}_collision"], "o-", color=colour, label=label)
+    axes[2].plot(it, columns["loss"], "o-", color="C7")
+    for ax, name in zip(axes, ("success, C < 4e-4", "collision", "fit loss"), strict=True):
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3)
+    for ax in axes[:2]:
+        ax.set_ylim(-0.02, 1.02)
+    axes[0].legend(loc="lower right", fontsize=8)
+    axes[-1].set_xlabel("DAgger iteration (0: behaviour cloning)")
+    axes[-1].set_xticks(it)
+    fig.suptitle("Distillation: the student's checks after each iteration")
+    return fig
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m trainers.plots",
                                      description=__doc__.splitlines()[0])
@@ -137,9 +177,14 @@ def main(argv: list[str] | None = None) -> None:
     matplotlib.use("Agg")  # files only (in a notebook the figures show inline instead)
     out = Path(args.out or args.run_dir)
     out.mkdir(parents=True, exist_ok=True)
-    scalars = read_scalars(args.run_dir)
-    for name, fig in (("training_curves.png", plot_training_curves(scalars)),
-                      ("losses.png", plot_losses(scalars))):
+    dagger = Path(args.run_dir) / "dagger.csv"
+    if dagger.is_file() and not any(Path(args.run_dir).glob("events.out.tfevents.*")):
+        figures = [("training_curves.png", plot_dagger(read_dagger(dagger)))]
+    else:
+        scalars = read_scalars(args.run_dir)
+        figures = [("training_curves.png", plot_training_curves(scalars)),
+                   ("losses.png", plot_losses(scalars))]
+    for name, fig in figures:
         fig.savefig(out / name, dpi=120)
         plt.close(fig)
         print(out / name)
