@@ -291,6 +291,26 @@ def test_evaluation_puts_a_policy_under_other_aids(smoke_run, tmp_path):
         "agent: hybrid: policy + emergency brake + docking law, added at evaluation")
 
 
+def test_a_sampled_evaluation_is_seeded_and_says_so(smoke_run, tmp_path, capsys):
+    """--sample S: the actions are drawn from the policy's distribution, torch seeded with S
+    at each level: the same S gives the same row, whichever levels ran before it."""
+    _, final = smoke_run
+    first = evaluate(str(final), episodes=6, levels=(0.0, 0.9), sample=3)
+    again = evaluate(str(final), episodes=6, levels=(0.9,), sample=3)[0]
+    mode = evaluate(str(final), episodes=6, levels=(0.9,))[0]
+    assert first[1] == again
+    assert again["actions"] == "sampled (torch seed 3)"
+    assert mode["actions"] == "the mode (deterministic)"
+    assert again["pos_err_median_m"] != mode["pos_err_median_m"]  # its std is e^0: it moves
+    with pytest.raises(ValueError, match="sample must be None or a torch seed"):
+        evaluate(str(final), episodes=2, levels=(0.9,), sample=True)
+    with pytest.raises(SystemExit) as refused:
+        evaluate_main([str(final), "--episodes", "2", "--out", str(tmp_path), "--videos",
+                       "none", "--sample", "-1"])
+    assert refused.value.code == 2
+    assert "--sample must be a torch seed >= 0, got -1" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(("aids", "message"), [
     (["observe_brake=true"], "--aids takes NAME=VALUE with NAME one of emergency_brake"),
     (["docking"], "--aids takes NAME=VALUE"),

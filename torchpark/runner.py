@@ -80,10 +80,13 @@ class Episodes:
 
 
 def run_episodes(actor, env: TransformedEnv, max_steps: int, desc: str | None = None,
-                 thresholds: tuple[float, ...] = SUCCESS_THRESHOLDS) -> Episodes:
-    """Run the deterministic policy until every lot's first episode has ended. No row is
-    reset: a row that ended steps on, unrecorded, until the last one ends. With ``desc``, a
-    progress bar of the episodes ended so far, so labelled (tqdm: ``torchpark[train]``)."""
+                 thresholds: tuple[float, ...] = SUCCESS_THRESHOLDS,
+                 exploration: ExplorationType = ExplorationType.DETERMINISTIC) -> Episodes:
+    """Run the policy (deterministic unless ``exploration`` says otherwise, e.g.
+    ``ExplorationType.RANDOM``: actions sampled from torch's global generator) until every
+    lot's first episode has ended. No row is reset: a row that ended steps on, unrecorded,
+    until the last one ends. With ``desc``, a progress bar of the episodes ended so far, so
+    labelled (tqdm: ``torchpark[train]``)."""
     base = env.base_env
     n = base.num_envs
     ended = torch.zeros(n, dtype=torch.bool)
@@ -103,7 +106,7 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int, desc: str | None = 
         from tqdm import tqdm
 
         bar = tqdm(total=n, desc=desc, unit="episode", leave=False)
-    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+    with set_exploration_type(exploration), torch.no_grad():
         for step in range(1, max_steps + 1):
             td = env.step(actor(td))
             nxt = td["next"]

@@ -2,10 +2,13 @@
 
     python -m trainers.evaluate CHECKPOINT [--episodes 200] [--out DIR] [--seed 1]
                                            [--videos mp4|gif|none] [--aids NAME=VALUE ...]
+                                           [--sample TORCH_SEED]
 
-Runs the deterministic policy (the TanhNormal's mode) for ``--episodes`` episodes at each
-occupancy level on lots the training never drew (its own seed; the same goals and starts at
-every level, so the levels differ only in their parked cars), and prints and writes
+Runs the deterministic policy (the TanhNormal's mode; with ``--sample S``, actions drawn from
+the policy's distribution, torch seeded with S at each level) for ``--episodes``
+episodes at each occupancy level on lots the training never drew (its own seed; the same
+goals and starts at every level, so the levels differ only in their parked cars), and prints
+and writes
 (``evaluation.md``, ``evaluation.csv``) what the agent is made of (COMPOSITION), success at
 the paper's C < 4e-4 and at 4e-3 and 4e-2 (the same episodes), collision and timeout rates,
 mean episode length, the failure modes (grazing collisions, freezing: see
@@ -40,7 +43,7 @@ from trainers.utils import make_eval_env, make_policy
 # Table 2 of the paper: success rate per curriculum phase (occupancy level).
 PAPER_SUCCESS = dict(zip(PAPER_LEVELS, (0.20, 0.52, 0.65, 0.64, 0.59, 0.62), strict=True))
 # What the agent is made of, in its own columns, so that no table is taken for another.
-COMPOSITION = ("agent", "brake", "docking_law", "action_repeat", "policy")
+COMPOSITION = ("agent", "brake", "docking_law", "action_repeat", "actions", "policy")
 # success: the paper's C < 4e-4; success_4e-3 and success_4e-2 the looser tests, from the
 # same episodes (torchpark.runner.SUCCESS_THRESHOLDS).
 RESULTS = ("occupancy", "episodes", "success", "success_4e-3", "success_4e-2", "collision",
@@ -79,10 +82,11 @@ def with_aids(cfg: TrainConfig, aids: list[str]) -> TrainConfig:
     return cfg
 
 
-def composition(cfg: TrainConfig, checkpoint: dict, added: bool = False
-                ) -> dict[str, str | int]:
+def composition(cfg: TrainConfig, checkpoint: dict, added: bool = False,
+                sampled: int | None = None) -> dict[str, str | int]:
     """What the evaluated agent is made of: the COMPOSITION columns (``added``: its aids were
-    given at evaluation, not in training)."""
+    given at evaluation, not in training; ``sampled``: the torch seed its actions were drawn
+    with, None for the deterministic policy)."""
     agent = cfg.agent
     brake = "off" if not agent.emergency_brake else (
         f"steers clear ({agent.steer_clear} angles)" if agent.steer_clear else "stops") + (
@@ -97,17 +101,29 @@ def composition(cfg: TrainConfig, checkpoint: dict, added: bool = False
                                                               else "")) if aids
         else "policy alone",
         "brake": brake, "docking_law": law, "action_repeat": agent.action_repeat,
+        "actions": "the mode (deterministic)" if sampled is None
+        else f"sampled (torch seed {sampled})",
         "policy": checkpoint.get("trained_by")
         or f"PPO ({cfg.logger.exp_name} preset run), {checkpoint['frames']:,} frames",
     }
 
 
 def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
-                   episodes: int, seed: int) -> dict[str, float]:
-    """One episode in each of ``episodes`` lots at ``occupancy``: the row of the table."""
+                   episodes: int, seed: int, sample: int | None = None) -> dict[str, float]:
+    """One episode in each of ``episodes`` lots (drawn from ``seed``) at ``occupancy``: the
+    row of the table. With ``sample``, the actions are drawn from the policy's distribution,
+    torch seeded with ``sample`` first (a level's row does not depend on the levels before)."""
     env = make_eval_env(cfg, checkpoint["obs_norm"], occupancy, episodes, seed)
-    run = run_episodes(actor, env, cfg.env.max_steps, desc=f"occupancy {occupancy:.0%}")
+    if sample is not None:
+        torch.manual_seed(sample)
+    run = run_episodes(actor, env, cfg.env.max_steps, desc=f"occupancy {occupancy:.0%}",
+                       exploration=exploration(sample))
     return level_row(run, occupancy)
+
+
+def exploration(sample: int | None) -> ExplorationType:
+    """How the policy acts: its distribution's mode, or (a sampling seed) a draw from it."""
+    return ExplorationType.DETERMINISTIC if sample is None else ExplorationType.RANDOM
 
 
 def level_row(run: Episodes, occupancy: float) -> dict[str, float]:
@@ -135,12 +151,16 @@ def level_row(run: Episodes, occupancy: float) -> dict[str, float]:
 
 def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
              videos: Path | None = None, video_format: str = "mp4",
-             device: str | None = None, aids: list[str] | None = None
-             ) -> list[dict[str, float]]:
+             device: str | None = None, aids: list[str] | None = None,
+             sample: int | None = None) -> list[dict[str, float]]:
     """The table's rows, one per level; with ``videos``, also one rollout video per level
-    (``rollout_occ{percent}.{video_format}``) of the deterministic policy in that directory.
-    ``device``: where the envs and the policy run (default: the checkpoint's training
-    device). ``aids``: NAME=VALUE settings of the agent's aids (:func:`with_aids`)."""
+    (``rollout_occ{percent}.{video_format}``) of the policy in that directory. ``device``:
+    where the envs and the policy run (default: the checkpoint's training device). ``aids``:
+    NAME=VALUE settings of the agent's aids (:func:`with_aids`). ``sample``: a torch seed,
+    actions drawn from the policy's distribution (seeded so at each level), not its mode."""
+    if sample is not None and (isinstance(sample, bool) or not isinstance(sample, int)
+                               or sample < 0):
+        raise ValueError(f"sample must be None or a torch seed (an int >= 0), got {sample!r}")
     cfg, checkpoint = load(path)
     if aids:
         cfg = with_aids(cfg, aids)
@@ -150,13 +170,13 @@ def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
     checkpoint = tree_map_only(torch.Tensor, lambda t: t.to(cfg.env.device), checkpoint)
     actor = make_policy(cfg, checkpoint["actor"])
     rows = []
-    made_of = composition(cfg, checkpoint, added=bool(aids))
+    made_of = composition(cfg, checkpoint, added=bool(aids), sampled=sample)
     for level in levels:
         rows.append({**made_of,
-                     **evaluate_level(actor, checkpoint, cfg, level, episodes, seed)})
+                     **evaluate_level(actor, checkpoint, cfg, level, episodes, seed, sample)})
         if videos is not None:
             env = make_eval_env(cfg, checkpoint["obs_norm"], level, 1, seed)
-            with set_exploration_type(ExplorationType.DETERMINISTIC):
+            with set_exploration_type(exploration(sample)):
                 record_video(env, actor, videos / f"rollout_occ{round(100 * level)}.{video_format}")
     return rows
 
@@ -201,11 +221,16 @@ def main(argv: list[str] | None = None) -> None:
                         help="replace evaluation files already in --out (refused by default)")
     parser.add_argument("--device", default=None,
                         help="torch device of the envs and the policy (default: the training's)")
+    parser.add_argument("--sample", type=int, default=None, metavar="TORCH_SEED",
+                        help="draw the actions from the policy's distribution (torch seeded "
+                             "with TORCH_SEED at each level) instead of taking its mode")
     parser.add_argument("--aids", nargs="+", default=[], metavar="NAME=VALUE",
                         help="put the policy under other aids: " + ", ".join(EVALUATION_AIDS))
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    if args.sample is not None and args.sample < 0:
+        parser.error(f"--sample must be a torch seed >= 0, got {args.sample}")
     out = Path(args.out) if args.out else Path(args.checkpoint).parent
     outputs = [out / "evaluation.md", out / "evaluation.csv"]
     if args.videos != "none":
@@ -219,7 +244,8 @@ def main(argv: list[str] | None = None) -> None:
         out.mkdir(parents=True, exist_ok=True)
         rows = evaluate(args.checkpoint, args.episodes, seed=args.seed,
                         videos=None if args.videos == "none" else out,
-                        video_format=args.videos, device=args.device, aids=args.aids)
+                        video_format=args.videos, device=args.device, aids=args.aids,
+                        sample=args.sample)
     except (ValueError, OSError) as err:
         parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
     print(write_tables(rows, out))
