@@ -149,7 +149,7 @@ def evaluate(out: Path, episodes: int, seed: int) -> list[dict]:
     model = PPO.load(out / MODEL, device="cpu")
     frames = torch.load(out / STATE, weights_only=True)["frames"]
     made_of = {"agent": "policy alone", "brake": "off", "docking_law": "off",
-               "action_repeat": 1,
+               "action_repeat": 1, "actions": "the mode (deterministic)",
                "policy": f"PPO (Stable-Baselines3 defaults, the paper's recipe), {frames:,} "
                          f"frames"}
     rows = []
