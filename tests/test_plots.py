@@ -83,3 +83,25 @@ def test_an_empty_dagger_csv_is_an_error_naming_it(tmp_path):
     write_dagger(tmp_path / "dagger.csv", 0)
     with pytest.raises(ValueError, match=r"dagger\.csv' holds no iteration"):
         read_dagger(tmp_path / "dagger.csv")
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("occupancy,success\n0.0,0.5\n", "is not a trainers.distill dagger.csv: no column 'iteration'"),
+    ("\x00\x01binary", "is not a trainers.distill dagger.csv"),
+    (b"\xff\xfe\x00", "is not a trainers.distill dagger.csv: not text"),
+])
+def test_a_file_that_is_no_dagger_csv_is_refused_by_name(tmp_path, capsys, text, message):
+    path = tmp_path / "dagger.csv"
+    path.write_bytes(text) if isinstance(text, bytes) else path.write_text(text)
+    with pytest.raises(SystemExit) as refused:
+        main([str(tmp_path)])
+    assert refused.value.code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "training_curves.png").exists()
+
+
+def test_a_dagger_csv_with_a_word_for_a_number_is_refused(tmp_path):
+    write_dagger(tmp_path / "dagger.csv", 2)
+    text = (tmp_path / "dagger.csv").read_text().replace("0.333", "many", 1)
+    (tmp_path / "dagger.csv").write_text(text)
+    with pytest.raises(ValueError, match="holds a value that is not a number"):
+        read_dagger(tmp_path / "dagger.csv")

@@ -114,16 +114,18 @@ def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
     row of the table. With ``sample``, the actions are drawn from the policy's distribution,
     torch seeded with ``sample`` first (a level's row does not depend on the levels before)."""
     env = make_eval_env(cfg, checkpoint["obs_norm"], occupancy, episodes, seed)
-    if sample is not None:
-        torch.manual_seed(sample)
     run = run_episodes(actor, env, cfg.env.max_steps, desc=f"occupancy {occupancy:.0%}",
                        exploration=exploration(sample))
     return level_row(run, occupancy)
 
 
 def exploration(sample: int | None) -> ExplorationType:
-    """How the policy acts: its distribution's mode, or (a sampling seed) a draw from it."""
-    return ExplorationType.DETERMINISTIC if sample is None else ExplorationType.RANDOM
+    """How the policy acts from here: its distribution's mode, or (``sample``, a torch seed)
+    draws from it, torch seeded with ``sample`` now."""
+    if sample is None:
+        return ExplorationType.DETERMINISTIC
+    torch.manual_seed(sample)
+    return ExplorationType.RANDOM
 
 
 def level_row(run: Episodes, occupancy: float) -> dict[str, float]:

@@ -138,13 +138,30 @@ DAGGER_CHECKS = (("yardstick", "near-goal starts, empty lot", "C0"),
                  ("uniform_90", "uniform starts, 90 %", "C3"))
 
 
+DAGGER_COLUMNS = ("iteration", "loss", *(f"{prefix}_{column}" for prefix, _, _ in DAGGER_CHECKS
+                                          for column in ("0.0004", "collision")))
+
+
 def read_dagger(path: str | Path) -> dict[str, np.ndarray]:
-    """A ``dagger.csv`` as column name -> values, one per iteration."""
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
+    """A ``dagger.csv`` as column name -> values, one per iteration; ValueError naming the
+    file when it holds no iteration, lacks a column DAGGER_COLUMNS plots, or a number."""
+    try:
+        with open(path, newline="") as f:
+            reader = csv.DictReader(f)
+            missing = [c for c in DAGGER_COLUMNS if c not in (reader.fieldnames or ())]
+            rows = list(reader)
+    except UnicodeDecodeError:
+        raise ValueError(f"{str(path)!r} is not a trainers.distill dagger.csv: not "
+                         f"text") from None
+    if missing:
+        raise ValueError(f"{str(path)!r} is not a trainers.distill dagger.csv: no column "
+                         f"{missing[0]!r}")
     if not rows:
         raise ValueError(f"{str(path)!r} holds no iteration")
-    return {key: np.asarray([float(r[key]) for r in rows]) for key in rows[0]}
+    try:
+        return {key: np.asarray([float(r[key]) for r in rows]) for key in DAGGER_COLUMNS}
+    except (TypeError, ValueError):
+        raise ValueError(f"{str(path)!r} holds a value that is not a number") from None
 
 
 def plot_dagger(columns: dict[str, np.ndarray]) -> Figure:
@@ -176,14 +193,17 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     matplotlib.use("Agg")  # files only (in a notebook the figures show inline instead)
     out = Path(args.out or args.run_dir)
-    out.mkdir(parents=True, exist_ok=True)
     dagger = Path(args.run_dir) / "dagger.csv"
-    if dagger.is_file() and not any(Path(args.run_dir).glob("events.out.tfevents.*")):
-        figures = [("training_curves.png", plot_dagger(read_dagger(dagger)))]
-    else:
-        scalars = read_scalars(args.run_dir)
-        figures = [("training_curves.png", plot_training_curves(scalars)),
-                   ("losses.png", plot_losses(scalars))]
+    try:
+        if dagger.is_file() and not any(Path(args.run_dir).glob("events.out.tfevents.*")):
+            figures = [("training_curves.png", plot_dagger(read_dagger(dagger)))]
+        else:
+            scalars = read_scalars(args.run_dir)
+            figures = [("training_curves.png", plot_training_curves(scalars)),
+                       ("losses.png", plot_losses(scalars))]
+    except (ValueError, FileNotFoundError) as err:
+        parser.error(str(err))
+    out.mkdir(parents=True, exist_ok=True)
     for name, fig in figures:
         fig.savefig(out / name, dpi=120)
         plt.close(fig)
