@@ -20,6 +20,7 @@ from torchpark import (
     BrakeConfig,
     DockingConfig,
     LidarConfig,
+    LotConfig,
     NearGoalStarts,
     ParkingConfig,
     ParkingEnv,
@@ -235,10 +236,14 @@ def test_action_dtypes_float64_is_rounded_the_others_refused():
             first.step(TensorDict({"action": a.to(dtype)}, batch_size=[6]))
 
 
-@pytest.mark.parametrize("seed", [1.5, True, "1", np.bool_(True), -1, 2**64])
+@pytest.mark.parametrize("seed", [1.5, True, "1", np.bool_(True), -1, 2**64, 2**32])
 def test_a_seed_that_is_not_an_int_raises(seed):
-    with pytest.raises(ValueError, match=r"seed must be an int in \[0, 2\*\*63\) or None"):
+    """2**32: torch's CPU generator keeps 32 bits of a seed, so 0 and 2**32 would draw the
+    same lots."""
+    with pytest.raises(ValueError, match=r"seed must be an int in \[0, 2\*\*32\)"):
         ParkingEnv(2, seed=seed)
+    with pytest.raises(ValueError, match=r"seed must be an int in \[0, 2\*\*32\)"):
+        ParkingEnv(2, seed=0).set_seed(seed)
 
 
 def test_numpy_numbers_are_taken_where_python_numbers_are():
@@ -415,3 +420,93 @@ def test_a_process_builds_as_many_compiled_envs_as_it_likes():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=600)
     assert done.returncode == 0 and done.stdout.split() == ["ok", "256"], done.stderr[-800:]
+
+
+def _equal_snapshots(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(
+        torch.equal(a[k], b[k]) if isinstance(a[k], torch.Tensor) else a[k] == b[k] for k in a)
+
+
+def test_restore_checks_everything_before_writing_anything():
+    """A snapshot that does not fit is refused by name, the env left exactly as it was."""
+    aids = AidsConfig(brake=BrakeConfig())
+    env = ParkingEnv(4, seed=1, aids=aids)
+    env.reset()
+    saved = env.snapshot()
+    env.rand_step()
+    before = env.snapshot()
+    noise = torch.randint(0, 256, saved["generator"].shape, dtype=torch.uint8,
+                          generator=torch.Generator().manual_seed(0))
+    other_lot = ParkingEnv(4, seed=1, aids=aids,
+                           config=ParkingConfig(lot=LotConfig(slot_width=2.6)))
+    other_lot.reset()
+    bad = [
+        ({**saved, "occupancy": 1.5}, ValueError, r"snapshot\['occupancy'\] must be a number "
+                                                  r"in \[0, 1\], got 1.5"),
+        ({**saved, "started": 1}, TypeError, r"snapshot\['started'\] must be a bool"),
+        ({**saved, "generator": noise}, ValueError, r"snapshot\['generator'\] is not a state "
+                                                    r"of this device's random generator"),
+        ({**saved, "state.pose": torch.full((4, 3), float("nan"))}, ValueError,
+         r"snapshot\['state'\]\.pose must be finite"),
+        ({**saved, "ahead.state.goal_slot": torch.full((4,), 999)}, ValueError,
+         r"snapshot\['ahead\.state'\]\.goal_slot must be a slot index in \[0, 38\)"),
+        ({**saved, "aids.interventions": torch.full((4,), -1)}, ValueError,
+         r"snapshot\['state'\]\.aids\.interventions must be >= 0"),
+        ({**saved, "success_threshold": torch.tensor(-1.0)}, ValueError,
+         r"snapshot\['success_threshold'\] must be a finite number > 0"),
+        (other_lot.snapshot(), ValueError, r"snapshot\['build'\] is of an env built "
+                                           r"otherwise: config\.lot\.slot_width=2\.6 in the "
+                                           r"snapshot, 2\.5 here"),
+        (ParkingEnv(4, seed=1).snapshot(), ValueError, "snapshot must hold exactly"),
+    ]
+    for snapshot, kind, message in bad:
+        with pytest.raises(kind, match=message):
+            env.restore(snapshot)
+        assert _equal_snapshots(env.snapshot(), before)
+    env.restore(saved)
+    assert _equal_snapshots(env.snapshot(), saved)
+
+
+def test_set_state_refuses_what_no_episode_holds_and_rows_without_a_lot():
+    env = ParkingEnv(4, seed=0)
+    with pytest.raises(RuntimeError, match="set_state before reset must set every row"):
+        env.set_state(ParkingState.zeros(4, env.world.obstacles.cx.shape[0], "cpu"),
+                      torch.tensor([True, False, True, True]))
+    with pytest.raises(RuntimeError, match="step before reset"):
+        env.rand_step()  # the refused set_state started nothing
+    env.reset()
+    state, before = env.state, env.snapshot()
+    for bad, message in ((state._replace(pose=torch.full((4, 3), float("nan"))),
+                          r"state\.pose must be finite"),
+                         (state._replace(goal_slot=torch.full((4,), 999)),
+                          r"state\.goal_slot must be a slot index in \[0, 38\)"),
+                         (state._replace(present=torch.full_like(state.present, 0.5)),
+                          r"state\.present must be 0 or 1")):
+        with pytest.raises(ValueError, match=message):
+            env.set_state(bad)
+        assert _equal_snapshots(env.snapshot(), before)
+
+
+@pytest.mark.parametrize("device", ["meta", "cuda:99", "nonsense"])
+def test_a_device_this_machine_lacks_is_one_line(device):
+    with pytest.raises(ValueError, match=r"^device (must be a torch device|is 'cuda:99', but "
+                                         r"torch sees)"):
+        ParkingEnv(1, device=device)
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--steps", "0"], "--steps must be in [1, 10000000]"),
+    (["--seed", str(2**32)], "--seed must be an int in [0, 2**32)"),
+    (["--num-envs", "0"], "num_envs must be an int >= 1"),
+    (["--device", "meta"], "device must be a torch device"),
+    (["--occupancy", "1.5"], "occupancy must be a number in [0, 1]"),
+])
+def test_the_demo_refuses_bad_arguments_in_one_line(argv, message, capsys):
+    from torchpark.__main__ import main as demo
+
+    with pytest.raises(SystemExit) as refused:
+        demo(["--eager", *argv])
+    err = capsys.readouterr().err
+    last = err.strip().splitlines()[-1]
+    assert refused.value.code == 2 and "Traceback" not in err
+    assert last.startswith("python -m torchpark: error: ") and message in last, err

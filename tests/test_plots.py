@@ -105,3 +105,35 @@ def test_a_dagger_csv_with_a_word_for_a_number_is_refused(tmp_path):
     (tmp_path / "dagger.csv").write_text(text)
     with pytest.raises(ValueError, match="holds a value that is not a number"):
         read_dagger(tmp_path / "dagger.csv")
+
+
+@pytest.mark.parametrize(("make", "message"), [
+    (lambda d: (d / "events.out.tfevents.not-a-time").write_text("garbage"),
+     "hold no scalars"),
+    (lambda d: (d / "events.out.tfevents.1.host").write_bytes(bytes(range(256)) * 4),
+     "hold no scalars"),
+    (lambda d: (d / "dagger.csv").mkdir(), "no TensorBoard event files under"),
+    (lambda d: None, "no TensorBoard event files under"),
+])
+def test_a_run_directory_without_curves_is_one_line(tmp_path, capsys, make, message):
+    make(tmp_path)
+    with pytest.raises(SystemExit) as refused:
+        main([str(tmp_path)])
+    err = capsys.readouterr().err
+    assert refused.value.code == 2 and "Traceback" not in err
+    assert message in err.strip().splitlines()[-1]
+    assert not list(tmp_path.glob("*.png"))
+
+
+def test_a_missing_run_directory_and_an_out_that_cannot_be_made_are_named(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main([str(tmp_path / "nope")])
+    assert f"run_dir '{tmp_path / 'nope'}' is not a directory" in capsys.readouterr().err
+    write_events(tmp_path / "run", "events.out.tfevents.100.host", range(8), 1.0)
+    (tmp_path / "file").write_text("a file")
+    with pytest.raises(SystemExit) as refused:
+        main([str(tmp_path / "run"), "--out", str(tmp_path / "file" / "plots")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert refused.value.code == 2 and err[-1].startswith(
+        f"python -m trainers.plots: error: --out '{tmp_path / 'file' / 'plots'}' cannot be "
+        f"created")

@@ -4,11 +4,32 @@ three-threshold table with what the agent is made of."""
 
 from __future__ import annotations
 
+import base64
+import json
+import subprocess
+import sys
+import textwrap
+import zipfile
+from pathlib import Path
+
+import cloudpickle
 import pytest
 import torch
+from stable_baselines3 import PPO
 
+from torchpark.files import locked
 from trainers.evaluate import COLUMNS
 from trainers.sb3_paper import MODEL, STATE, evaluate, main, train
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def one_rollout(tmp_path_factory):
+    """A run of one rollout (2,048 frames), its checkpoint written."""
+    out = tmp_path_factory.mktemp("sb3")
+    train(out, 2048, 2048, 10**9, seed=0, resume_run=False)
+    return out
 
 
 def test_a_resumed_run_equals_the_uninterrupted_one(tmp_path):
@@ -28,10 +49,9 @@ def test_a_resumed_run_equals_the_uninterrupted_one(tmp_path):
     torch.testing.assert_close(a, b, rtol=0, atol=0)  # env snapshot, last obs, both RNGs
 
 
-def test_the_evaluation_is_the_three_threshold_table_of_a_policy_alone(tmp_path):
-    train(tmp_path, 2048, 2048, 10**9, seed=0, resume_run=False)
-    assert (tmp_path / MODEL).exists()
-    rows = evaluate(tmp_path, episodes=4, seed=1)
+def test_the_evaluation_is_the_three_threshold_table_of_a_policy_alone(one_rollout):
+    assert (one_rollout / MODEL).exists()
+    rows = evaluate(one_rollout, episodes=4, seed=1)
     assert [r["occupancy"] for r in rows] == [0.0, 0.2, 0.4, 0.6, 0.8, 0.9]
     assert all(tuple(r) == COLUMNS and r["agent"] == "policy alone" for r in rows)
     assert all(r["success"] <= r["success_4e-3"] <= r["success_4e-2"] for r in rows)
@@ -45,7 +65,8 @@ def test_the_command_line_refuses_what_would_hurt(tmp_path, capsys):
         assert stop.value.code == 2
         return capsys.readouterr().err
 
-    assert "--seed must be in [0, 2**63)" in refused("--seed", "-1")
+    assert "--seed must be an int in [0, 2**32)" in refused("--seed", "-1")
+    assert "--seed must be an int in [0, 2**32)" in refused("--seed", str(2**32))
     assert "holds no whole run" in refused("--resume")
     assert "holds no whole run" in refused("--evaluate")
     (tmp_path / MODEL).write_bytes(b"not a model")
@@ -54,3 +75,87 @@ def test_the_command_line_refuses_what_would_hurt(tmp_path, capsys):
     (tmp_path / "evaluation.md").write_text("mine")
     assert "holds an evaluation: --overwrite" in refused("--evaluate")
     assert (tmp_path / "evaluation.md").read_text() == "mine"
+
+
+class _Payload:
+    """Unpickled, it writes a marker file: what a crafted model.zip could run."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.write_text, (self.marker, "code ran"))
+
+
+def test_a_crafted_model_zip_runs_no_code(one_rollout, tmp_path):
+    """SB3's PPO.load unpickles the zip's serialised entries (and so runs a payload); the
+    script reads its checkpoint from state.pt (weights_only) and never reads model.zip."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / STATE).write_bytes((one_rollout / STATE).read_bytes())
+    marker = tmp_path / "marker"
+    crafted_zip = tmp_path / "crafted.zip"
+    with zipfile.ZipFile(one_rollout / MODEL) as source, \
+            zipfile.ZipFile(crafted_zip, "w") as crafted:
+        for item in source.infolist():
+            content = source.read(item)
+            if item.filename == "data":
+                data = json.loads(content)
+                data["clip_range"] = {":type:": "<class 'function'>", ":serialized:":
+                                      base64.b64encode(cloudpickle.dumps(_Payload(marker)))
+                                      .decode()}
+                content = json.dumps(data).encode()
+            crafted.writestr(item, content)
+    (out / MODEL).write_bytes(crafted_zip.read_bytes())
+    main(["--out", str(out), "--evaluate", "--episodes", "2"])
+    main(["--out", str(out), "--resume", "--total-frames", "4096"])
+    assert not marker.exists()
+    assert torch.load(out / STATE, weights_only=True)["frames"] == 4096
+    PPO.load(crafted_zip, device="cpu")
+    assert marker.read_text() == "code ran"  # SB3's own loader runs it: the test can fail
+
+
+def test_a_run_killed_while_saving_resumes_from_the_previous_checkpoint(one_rollout,
+                                                                         tmp_path):
+    """SIGKILL half way through writing state.pt, then half way through the model.zip export
+    after it: both times --resume goes on from a whole checkpoint."""
+    out = tmp_path / "run"
+    out.mkdir()
+    for name in (STATE, MODEL):
+        (out / name).write_bytes((one_rollout / name).read_bytes())
+    before = (out / STATE).read_bytes()
+    for dying in ("state", "model"):
+        killed = subprocess.run([sys.executable, "-c", textwrap.dedent(f"""
+            import os, pathlib, signal, zipfile
+            from trainers.sb3_paper import main
+
+            def die():
+                os.kill(os.getpid(), signal.SIGKILL)
+
+            if {dying!r} == "state":
+                def dies_half_way(self, data):
+                    with open(self, "wb") as f:
+                        f.write(bytes(data)[:len(data) // 2])
+                    die()
+                pathlib.Path.write_bytes = dies_half_way
+            else:
+                real_write = zipfile.ZipFile.writestr
+                def dies_in_the_zip(self, *args, **kwargs):
+                    real_write(self, *args, **kwargs)
+                    die()
+                zipfile.ZipFile.writestr = dies_in_the_zip
+            main(["--out", {str(out)!r}, "--resume", "--total-frames", "4096"])
+        """)], capture_output=True, text=True, timeout=300, cwd=REPO)
+        assert killed.returncode == -9, killed.stderr[-2000:]
+        if dying == "state":
+            assert (out / STATE).read_bytes() == before
+    main(["--out", str(out), "--resume", "--total-frames", "4096"])
+    assert torch.load(out / STATE, weights_only=True)["frames"] == 4096
+
+
+def test_a_directory_in_use_is_refused(one_rollout, capsys):
+    with locked(one_rollout, "--out"):
+        with pytest.raises(SystemExit) as refused:
+            main(["--out", str(one_rollout), "--evaluate", "--episodes", "2", "--overwrite"])
+    assert refused.value.code == 2
+    assert "is in use by another run" in capsys.readouterr().err

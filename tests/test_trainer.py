@@ -5,6 +5,12 @@ from __future__ import annotations
 import csv
 import dataclasses
 import math
+import shutil
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
 
 import imageio.v3 as iio
 import pytest
@@ -20,6 +26,7 @@ from torchpark import (
     ParkingConfig,
 )
 from torchpark.aids.features import GOAL_FEATURES
+from torchpark.files import locked
 from trainers.config import ModelConfig, env_configs, load_config
 from trainers.evaluate import COLUMNS, evaluate
 from trainers.evaluate import main as evaluate_main
@@ -426,6 +433,10 @@ def test_action_repeat_must_divide_the_batch():
     ("train.collision_penalty=nan", "train.collision_penalty"),
     ("train.collision_penalty=200", "train.collision_penalty"),
     *([] if torch.cuda.is_available() else [("env.device=cuda", "env.device")]),
+    ("env.device=meta", "env.device"),
+    ("agent.emergency_brake=2", "agent.emergency_brake must be true or false"),
+    ("model.init_log_std=100", "model.init_log_std must be a number in [-20, 2]"),
+    ("seed=4294967296", "seed must be an int in [0, 2**32)"),
 ])
 def test_a_bad_training_field_is_one_line_naming_it(override, name, capsys):
     with pytest.raises(SystemExit) as refused:
@@ -453,3 +464,215 @@ def _leaf_fields():
 def test_every_training_field_rejects_a_wrong_type_by_name(key):
     with pytest.raises(ValueError, match=rf"^{key}:? "):
         load_config("smoke", [f"{key}=not_a_value_of_its_type"])
+
+
+# What a run writes survives every flag, every crash and every neighbour (torchpark.files).
+
+
+def _copy_run(smoke_run, tmp_path) -> tuple[Path, dict[str, bytes]]:
+    """A copy of the smoke run's directory (tmp_path/runs/smoke) and its files' bytes."""
+    _, final = smoke_run
+    run = tmp_path / "runs" / "smoke"
+    shutil.copytree(final.parent, run)
+    return run, _contents(run)
+
+
+def _contents(run: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(run.iterdir()) if not p.name.startswith(".")}
+
+
+def _craft(source: Path, path: Path, **sections) -> Path:
+    """A copy of checkpoint ``source`` whose config sections are updated with ``sections``."""
+    checkpoint = torch.load(source, weights_only=True)
+    for name, fields in sections.items():
+        checkpoint["config"][name] = {**checkpoint["config"][name], **fields}
+    torch.save(checkpoint, path)
+    return path
+
+
+def _python(code: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True,
+                          text=True, timeout=timeout, cwd=REPO)
+
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_overwrite_deletes_nothing_before_every_check_has_passed(smoke_run, tmp_path, capsys):
+    run, before = _copy_run(smoke_run, tmp_path)
+    argv = ["--preset", "smoke", f"logger.log_dir={run.parent}", "--overwrite"]
+    other = _craft(run / "checkpoint_final.pt", tmp_path / "other.pt",
+                   model={"hidden": [32, 32]})
+    for extra, message in ((["--resume", str(other)], "another model config"),
+                           (["loss.anchor_coef=1"], "pass --init CHECKPOINT"),
+                           (["--init", str(other)], "another model config")):
+        with pytest.raises(SystemExit) as refused:
+            main([*argv, *extra])
+        assert refused.value.code == 2 and message in capsys.readouterr().err
+        assert _contents(run) == before  # nothing deleted
+    # --init from the run's own final checkpoint: read, never deleted before it is replaced
+    started = run / "checkpoint_final.pt"
+    main([*argv, "--init", str(started), "collector.total_frames=2048"])
+    final = torch.load(started, weights_only=True)
+    assert final["frames"] == 2048 and final["started_from"] == str(started)
+    assert sorted(_contents(run)) == ["checkpoint_2048.pt", "checkpoint_final.pt",
+                                      next(n for n in _contents(run) if n.startswith("events"))]
+
+
+def test_two_runs_started_into_one_directory_the_second_is_refused(tmp_path):
+    argv = [sys.executable, "-m", "trainers.ppo", "--preset", "smoke",
+            f"logger.log_dir={tmp_path}"]
+    first = subprocess.Popen([*argv, "collector.total_frames=40960"], cwd=REPO,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not list((tmp_path / "smoke").glob("events.out.tfevents.*")):  # it trains
+            assert first.poll() is None and time.monotonic() < deadline
+            time.sleep(0.1)
+        second = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=300)
+        assert first.poll() is None  # the second ended while the first still ran
+        assert second.returncode == 2
+        assert second.stderr.strip().splitlines()[-1] == (
+            f"python -m trainers.ppo: error: logger.log_dir '{tmp_path / 'smoke'}' is "
+            f"in use by another run (it holds .torchpark.lock): wait for it to end, or choose "
+            f"another directory")
+    finally:
+        _, err = first.communicate(timeout=300)
+    assert first.returncode == 0, err[-2000:]
+    assert len(list((tmp_path / "smoke").glob("events.out.tfevents.*"))) == 1
+    assert torch.load(tmp_path / "smoke" / "checkpoint_final.pt",
+                      weights_only=True)["frames"] == 40960
+
+
+def test_a_run_killed_while_rewriting_its_final_checkpoint_leaves_the_previous_one(
+        smoke_run, tmp_path):
+    """A finished run resumed into its own directory, killed (SIGKILL) half way through
+    writing its new checkpoint_final.pt: the previous one is whole and resumes."""
+    run, before = _copy_run(smoke_run, tmp_path)
+    final = run / "checkpoint_final.pt"
+    killed = _python(f"""
+        import os, pathlib, signal
+        from trainers.ppo import main
+        real_write = pathlib.Path.write_bytes
+
+        def dies_half_way(self, data):
+            if "checkpoint_final" not in self.name:
+                return real_write(self, data)
+            with open(self, "wb") as f:
+                f.write(bytes(data)[:len(data) // 2])
+            os.kill(os.getpid(), signal.SIGKILL)
+
+        pathlib.Path.write_bytes = dies_half_way
+        main(["--preset", "smoke", "--resume", {str(final)!r}, "logger.log_dir={run.parent}",
+              "collector.total_frames=5120"])
+    """)
+    assert killed.returncode == -9, killed.stderr[-2000:]
+    assert final.read_bytes() == before["checkpoint_final.pt"]
+    main(["--preset", "smoke", "--resume", str(final), f"logger.log_dir={run.parent}",
+          "collector.total_frames=5120"])
+    assert torch.load(final, weights_only=True)["frames"] == 5120
+
+
+def test_a_full_disk_is_one_line_naming_the_file_and_leaves_nothing_half_written(tmp_path):
+    limited = _python(f"""
+        import resource
+        resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, 64 * 1024))  # events fit
+        from trainers.ppo import main
+        main(["--preset", "smoke", "logger.log_dir={tmp_path}"])
+    """)
+    checkpoint = tmp_path / "smoke" / "checkpoint_2048.pt"
+    assert limited.returncode == 2 and "Traceback" not in limited.stderr
+    assert limited.stderr.strip().splitlines()[-1] == (
+        f"python -m trainers.ppo: error: cannot write {str(checkpoint)!r}: File too large")
+    assert sorted(p.name for p in (tmp_path / "smoke").iterdir()
+                  if not p.name.startswith("events")) == [".torchpark.lock"]
+
+
+def test_the_evaluator_prints_its_table_before_a_full_disk_stops_its_files(smoke_run,
+                                                                          tmp_path):
+    _, final = smoke_run
+    limited = _python(f"""
+        import resource
+        resource.setrlimit(resource.RLIMIT_FSIZE, (512, 512))
+        from trainers.evaluate import main
+        main([{str(final)!r}, "--episodes", "2", "--out", {str(tmp_path)!r}, "--videos",
+              "none"])
+    """)
+    assert limited.returncode == 2 and "Traceback" not in limited.stderr
+    assert "| occupancy | episodes | success |" in limited.stdout
+    assert len(limited.stdout.strip().splitlines()) == 10  # caption, blank, header, rule, 6
+    assert limited.stderr.strip().splitlines()[-1] == (
+        f"python -m trainers.evaluate: error: cannot write "
+        f"{str(tmp_path / 'evaluation.csv')!r}: File too large")
+    assert [p.name for p in tmp_path.iterdir()] == [".torchpark.lock"]
+
+
+def test_two_evaluations_into_one_directory_the_second_is_refused(smoke_run, tmp_path, capsys):
+    _, final = smoke_run
+    with locked(tmp_path, "--out"):
+        with pytest.raises(SystemExit) as refused:
+            evaluate_main([str(final), "--episodes", "2", "--out", str(tmp_path), "--videos",
+                           "none"])
+    err = capsys.readouterr().err
+    assert refused.value.code == 2 and "is in use by another run" in err
+    assert not (tmp_path / "evaluation.md").exists()
+
+
+@pytest.mark.parametrize(("sections", "message"), [
+    ({"model": {"hidden": [32, 32]}}, "its actor does not fit the network its config builds"),
+    ({"agent": {"emergency_brake": 2}}, "agent.emergency_brake must be true or false, got 2"),
+    ({"logger": {"exp_name": "${oc.env:HOME}"}},
+     "has an OmegaConf interpolation ('${...}') in config.logger.exp_name"),
+])
+def test_a_crafted_checkpoint_is_one_line_naming_it(smoke_run, tmp_path, capsys, sections,
+                                                    message):
+    _, final = smoke_run
+    crafted = _craft(final, tmp_path / "crafted.pt", **sections)
+    with pytest.raises(SystemExit) as refused:
+        evaluate_main([str(crafted), "--episodes", "2", "--out", str(tmp_path / "eval"),
+                       "--videos", "none"])
+    err = capsys.readouterr().err
+    assert refused.value.code == 2 and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1 and str(crafted) in err and message in err, err
+    assert not (tmp_path / "eval" / "evaluation.md").exists()
+
+
+def test_a_resumed_checkpoint_whose_weights_do_not_fit_its_config_is_named(smoke_run, tmp_path,
+                                                                           capsys):
+    _, final = smoke_run
+    crafted = _craft(final, tmp_path / "crafted.pt", model={"hidden": [32, 32]})
+    with pytest.raises(SystemExit) as refused:
+        main(["--preset", "smoke", "--resume", str(crafted), "model.hidden=[32,32]",
+              f"logger.log_dir={tmp_path}", "collector.total_frames=6144"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert refused.value.code == 2 and err == [
+        f"python -m trainers.ppo: error: checkpoint {str(crafted)!r}: its actor does not fit "
+        f"the network its config builds: Error(s) in loading state_dict for "
+        f"ProbabilisticActor:"]
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--sample", str(2**70)], "--sample must be a torch seed < 2**32"),
+    (["--seed", str(2**32)], "--seed must be an int in [0, 2**32)"),
+    (["--episodes", str(10**9)], "--episodes must be in [1, 1000000]"),
+    (["--device", "meta"], "must be a torch device such as 'cpu' or 'cuda:0', got 'meta'"),
+])
+def test_an_evaluation_argument_out_of_range_is_one_line(smoke_run, tmp_path, capsys, argv,
+                                                        message):
+    _, final = smoke_run
+    with pytest.raises(SystemExit) as refused:
+        evaluate_main([str(final), "--out", str(tmp_path), "--videos", "none", *argv])
+    err = capsys.readouterr().err
+    assert refused.value.code == 2 and message in err and "Traceback" not in err
+
+
+def test_ray_collection_without_ray_installed_is_one_line(monkeypatch):
+    import importlib.util
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *args: None if name == "ray" else find_spec(name, *args))
+    with pytest.raises(ValueError, match=r"dist\.collectors must be direct, process or rpc: "
+                                         r"ray needs Ray installed"):
+        load_config("smoke", ["dist.collectors=ray", "dist.num_collectors=2",
+                              "env.num_envs=16"])

@@ -11,6 +11,9 @@ import time
 import torch
 
 from torchpark import ParkingEnv
+from torchpark.config import SEED_LIMIT
+
+MAX_STEPS = 10**7  # batched steps: far beyond a demo, short of an accidental forever
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -24,6 +27,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--eager", action="store_true",
                         help="compile_step=False (by default the step is compiled)")
     args = parser.parse_args(argv)
+    if not 1 <= args.steps <= MAX_STEPS:
+        parser.error(f"--steps must be in [1, {MAX_STEPS}], got {args.steps}")
+    if not 0 <= args.seed < SEED_LIMIT:
+        parser.error(f"--seed must be an int in [0, 2**32), got {args.seed}")
 
     torch.manual_seed(args.seed)  # the random actions (the action spec's rand) follow the seed
     try:
@@ -31,7 +38,7 @@ def main(argv: list[str] | None = None) -> None:
                          compile_step=not args.eager)
         env.occupancy = args.occupancy
     except (ValueError, TypeError, RuntimeError) as err:
-        parser.exit(2, f"{parser.prog}: error: {err}\n")
+        parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
     if not args.eager:
         print("compiling the step and the reset (tens of seconds; --eager skips it) ...",
               flush=True)

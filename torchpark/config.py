@@ -64,6 +64,19 @@ def check_types(config: object) -> None:
         object.__setattr__(config, f.name, value)
 
 
+# Seeds are ints in [0, SEED_LIMIT): torch's CPU generator (mt19937) keeps 32 bits of a
+# seed, so that seeds s and s + 2**32 would draw the same lots.
+SEED_LIMIT = 2**32
+
+
+def check_seed(value: object, name: str = "seed") -> int:
+    """``value`` as an int, or ValueError naming ``name`` when it is not one in
+    [0, SEED_LIMIT)."""
+    if not is_integer(value) or not 0 <= value < SEED_LIMIT:
+        raise ValueError(f"{name} must be an int in [0, 2**32), got {value!r}")
+    return int(value)
+
+
 def require(ok: bool, name: str, allowed: str, value: object) -> None:
     if not ok:
         raise ValueError(f"{name} must be {allowed}, got {value!r}")
@@ -141,8 +154,7 @@ class LotConfig:
                  "an int in [0, 1024]", self.start_candidates)
         require(1 <= self.start_pool_size <= 2**20, "LotConfig.start_pool_size",
                  "an int in [1, 2**20]", self.start_pool_size)
-        require(0 <= self.pool_seed < 2**63, "LotConfig.pool_seed", "an int in [0, 2**63)",
-                 self.pool_seed)
+        check_seed(self.pool_seed, "LotConfig.pool_seed")
 
     @property
     def num_slots(self) -> int:

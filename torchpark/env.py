@@ -13,6 +13,7 @@ of B rows costs a gather and a scatter of B rows, plus 1/N of a batch draw per r
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from functools import partial
@@ -35,7 +36,15 @@ from torchpark.aids.step import (
     aided_new_episodes,
     aided_step,
 )
-from torchpark.config import ParkingConfig, check_flag, check_occupancy, is_integer, is_number
+from torchpark.config import (
+    SEED_LIMIT,
+    ParkingConfig,
+    check_flag,
+    check_occupancy,
+    check_seed,
+    is_integer,
+    is_number,
+)
 from torchpark.sim.episodes import draw_lots
 from torchpark.sim.layout import build_layout
 from torchpark.sim.observation import observation_dim, observe
@@ -54,6 +63,36 @@ def _allow_recompiles() -> None:
     config.recompile_limit = max(config.recompile_limit, _RECOMPILE_LIMIT)
     config.accumulated_recompile_limit = max(config.accumulated_recompile_limit,
                                              4 * _RECOMPILE_LIMIT)
+
+
+def check_device(device: object, name: str = "device") -> None:
+    """ValueError naming ``name`` unless ``device`` is a CPU or CUDA device this machine
+    has."""
+    try:
+        parsed = torch.device(device)
+    except (RuntimeError, TypeError):
+        parsed = None
+    if parsed is None or parsed.type not in ("cpu", "cuda"):
+        raise ValueError(f"{name} must be a torch device such as 'cpu' or 'cuda:0', got "
+                         f"{device!r}")
+    count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    if parsed.type == "cuda" and (parsed.index or 0) >= count:
+        raise ValueError(f"{name} is {device!r}, but torch sees {count or 'no'} CUDA "
+                         f"device(s) here")
+
+
+def _first_difference(saved: object, ours: object, name: str = "") -> str | None:
+    """Where two nested dicts of plain data first differ, as ``"name=<saved> in the
+    snapshot, <ours> here"``; None where they are equal."""
+    if isinstance(saved, dict) and isinstance(ours, dict):
+        for key in sorted(set(saved) | set(ours), key=str):
+            found = _first_difference(saved.get(key), ours.get(key), f"{name}.{key}".lstrip("."))
+            if found is not None:
+                return found
+        return None
+    if saved != ours:
+        return f"{name or 'build'}={saved!r} in the snapshot, {ours!r} here"
+    return None
 
 
 class ParkingEnv(EnvBase):
@@ -117,6 +156,7 @@ class ParkingEnv(EnvBase):
             raise TypeError(f"config must be a ParkingConfig, got {type(config).__name__}")
         if aids is not None and not isinstance(aids, AidsConfig):
             raise TypeError(f"aids must be an AidsConfig or None, got {type(aids).__name__}")
+        check_device(device)
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self.num_envs = num_envs
         self.config = cfg = config if config is not None else ParkingConfig()
@@ -246,10 +286,9 @@ class ParkingEnv(EnvBase):
 
     # ------------------------------------------------------------------ seeding and state
     def _set_seed(self, seed: int | None) -> None:
-        if seed is not None and (not is_integer(seed) or not 0 <= seed < 2**63):
-            raise ValueError(f"seed must be an int in [0, 2**63) or None, got {seed!r}")
         if seed is None:
-            seed = int(torch.randint(0, 2**62, (), dtype=torch.int64))
+            seed = int(torch.randint(0, SEED_LIMIT, (), dtype=torch.int64))
+        seed = check_seed(seed, "seed")
         self._generator.manual_seed(int(seed))
         self._ahead_used = self.num_envs  # later lots come from the new seed
 
@@ -312,14 +351,43 @@ class ParkingEnv(EnvBase):
                 or rows.numel() != self.num_envs:
             raise ValueError(f"rows must be a bool tensor of {self.num_envs} elements (one per "
                              f"env), got {rows!r}")
-        index = rows.to(self.device).reshape(self.num_envs).nonzero()[:, 0]
-        fresh = take_rows(state, index)
-        observation, cost = observe(fresh, self._world, self.config)
-        if self.aids is not None:
-            fresh = AidedState(fresh, AidState.zeros(index.shape[0], self.device))
+        rows = rows.to(self.device).reshape(self.num_envs)
+        if not self._started and not bool(rows.all()):
+            raise RuntimeError("ParkingEnv.set_state before reset must set every row (the "
+                               "others hold no lot): call env.reset() first, or pass all rows")
+        index = rows.nonzero()[:, 0]
+        sim = take_rows(state, index)
+        fresh = sim if self.aids is None else AidedState(
+            sim, AidState.zeros(index.shape[0], self.device))
+        self._check_state(fresh, "state")
+        observation, cost = observe(sim, self._world, self.config)
         self._write_rows(index, fresh, observation, cost)
         self._started = True
         return self._reset_output()
+
+    def _check_state(self, state: tuple, name: str) -> None:
+        """ValueError naming ``name.field`` where a state of the env's kind (rows [B, ...])
+        holds what no episode can: a non-finite pose, speed or goal, a goal slot outside the
+        lot's, a presence other than 0 or 1, a negative step or intervention count, an
+        occupancy outside [0, 1]. One read-back: for set_state and restore, not the step."""
+        sim, aid = (state, None) if self.aids is None else state
+        slots = self._world.goal_poses.shape[0]
+        checks = [
+            ("pose", torch.isfinite(sim.pose).all(), "finite"),
+            ("speed", torch.isfinite(sim.speed).all(), "finite"),
+            ("goal", torch.isfinite(sim.goal).all(), "finite"),
+            ("goal_slot", ((sim.goal_slot >= 0) & (sim.goal_slot < slots)).all(),
+             f"a slot index in [0, {slots})"),
+            ("present", ((sim.present == 0) | (sim.present == 1)).all(), "0 or 1"),
+            ("steps", (sim.steps >= 0).all(), ">= 0"),
+            ("occupancy", ((sim.occupancy >= 0) & (sim.occupancy <= 1)).all(), "in [0, 1]"),
+        ]
+        if aid is not None:
+            checks.append(("aids.interventions", (aid.interventions >= 0).all(), ">= 0"))
+        held = torch.stack([ok for _, ok, _ in checks]).tolist()  # the one read-back
+        for (field, _, allowed), fine in zip(checks, held, strict=True):
+            if not fine:
+                raise ValueError(f"{name}.{field} must be {allowed} in every row")
 
     def _zeros(self) -> tuple:
         """A state of the env's kind holding no lot, with its observation and cost: zeros."""
@@ -352,22 +420,31 @@ class ParkingEnv(EnvBase):
             sim, AidState(*(get(f"aids.{k}") for k in AidState._fields)))
         return state, get("observation"), get("cost")
 
-    def snapshot(self) -> dict[str, torch.Tensor | float | bool | int]:
+    def _build(self) -> dict:
+        """How the env was built (what its state's meaning depends on), as plain data: the
+        number of lots, the task's config and the aids'."""
+        return {"num_envs": self.num_envs, "config": dataclasses.asdict(self.config),
+                "aids": None if self.aids is None else dataclasses.asdict(self.aids)}
+
+    def snapshot(self) -> dict[str, torch.Tensor | float | bool | int | dict]:
         """Everything the env's future depends on, as plain tensors and numbers (safe for
         ``torch.save`` and ``torch.load(weights_only=True)``): every lot's state (and the
         aids'), the last observation and cost, the episodes drawn ahead and how many of them
-        are handed out, the random generator, the occupancy of later lots and the success
-        threshold. :meth:`restore` continues exactly from it."""
+        are handed out, the random generator, the occupancy of later lots, the success
+        threshold, and how the env was built (``build``: its size and configs, so that an env
+        built otherwise refuses it). :meth:`restore` continues exactly from it."""
         return {**self._flat(self._state, self._observation, self._cost),
                 **self._flat(*self._ahead, prefix="ahead."), "ahead_used": self._ahead_used,
                 "generator": self._generator.get_state(), "occupancy": self._occupancy,
                 "success_threshold": self._world.success_threshold.clone(),
-                "started": self._started}
+                "started": self._started, "build": self._build()}
 
     def restore(self, snapshot: dict) -> None:
         """Continue exactly from a :meth:`snapshot` of an env built the same way (same
-        ``num_envs``, config and aids). ValueError naming the entry when it does not fit. A
-        snapshot of an older version, without episodes drawn ahead, continues with none."""
+        ``num_envs``, config and aids). All or nothing: every entry is checked before any is
+        written, and a ValueError names the entry that does not fit (the env is then left as
+        it was). A snapshot of an older version, without episodes drawn ahead, continues with
+        none."""
         if not isinstance(snapshot, dict):
             raise TypeError(f"snapshot must be a dict from ParkingEnv.snapshot, got "
                             f"{type(snapshot).__name__}")
@@ -380,6 +457,9 @@ class ParkingEnv(EnvBase):
         if missing or set(snapshot) - set(expected):
             raise ValueError(f"snapshot must hold exactly {sorted(expected)}; missing "
                              f"{missing}, extra {sorted(set(snapshot) - set(expected))}")
+        differs = _first_difference(snapshot["build"], expected["build"])
+        if differs is not None:
+            raise ValueError(f"snapshot['build'] is of an env built otherwise: {differs}")
         for key, ours in expected.items():
             theirs = snapshot[key]
             if isinstance(ours, torch.Tensor) and (
@@ -391,13 +471,31 @@ class ParkingEnv(EnvBase):
         if not is_integer(used) or not 0 <= used <= self.num_envs:
             raise ValueError(f"snapshot['ahead_used'] must be an int in [0, {self.num_envs}], "
                              f"got {used!r}")
-        state, self._observation, self._cost = self._unflat(snapshot)
+        occupancy = check_occupancy(snapshot["occupancy"], "snapshot['occupancy']")
+        started = check_flag(snapshot["started"], "snapshot['started']")
+        threshold = snapshot["success_threshold"]
+        if not bool(torch.isfinite(threshold) & (threshold > 0)):
+            raise ValueError(f"snapshot['success_threshold'] must be a finite number > 0, got "
+                             f"{threshold!r}")
+        try:  # a generator state of the right size may still be no valid one
+            torch.Generator(device=self.device).set_state(snapshot["generator"])
+        except RuntimeError as err:
+            raise ValueError(f"snapshot['generator'] is not a state of this device's random "
+                             f"generator: {str(err).splitlines()[0]}") from None
+        current, ahead = self._unflat(snapshot), self._unflat(snapshot, "ahead.")
+        for (state, observation, cost), prefix in ((current, ""), (ahead, "ahead.")):
+            self._check_state(state, f"snapshot['{prefix}state']")
+            if not bool(torch.isfinite(observation).all() & torch.isfinite(cost).all()):
+                raise ValueError(f"snapshot['{prefix}observation'] and ['{prefix}cost'] must "
+                                 f"be finite")
+        # Everything fits: written from here on, nothing can fail half-way.
+        state, self._observation, self._cost = current
         self._keep(*((state,) if self.aids is None else state))
         self._generator.set_state(snapshot["generator"])
-        self.occupancy = snapshot["occupancy"]
-        self.set_success_threshold(snapshot["success_threshold"].to(self.device))
-        self._started = check_flag(snapshot["started"], "snapshot['started']")
-        self._ahead, self._ahead_used = self._unflat(snapshot, "ahead."), int(used)
+        self.occupancy = occupancy
+        self.set_success_threshold(threshold.to(self.device))
+        self._started = started
+        self._ahead, self._ahead_used = ahead, int(used)
 
     def randomize_step_counts(self) -> None:
         """Set every env's step count to a uniform draw in [0, max_steps), from the env's

@@ -40,4 +40,38 @@ def load_checkpoint(path: str | Path, device: torch.device | str = "cpu",
     if missing or not isinstance(checkpoint["config"], dict):
         raise ValueError(f"checkpoint {str(path)!r} is not a torchpark checkpoint: "
                          + (f"it lacks {missing}" if missing else "its config is not a dict"))
+    interpolated = _interpolation(checkpoint["config"])
+    if interpolated is not None:
+        raise ValueError(f"checkpoint {str(path)!r} has an OmegaConf interpolation ('${{...}}') "
+                         f"in config.{interpolated}: a saved config holds values, never "
+                         f"something to resolve")
     return checkpoint
+
+
+def _interpolation(config: object, name: str = "") -> str | None:
+    """The dot name of the first string in a saved config that OmegaConf would resolve
+    (``${...}``: an environment variable, a resolver), or None."""
+    if isinstance(config, dict):
+        items = config.items()
+    elif isinstance(config, (list, tuple)):
+        items = enumerate(config)
+    else:
+        return name if isinstance(config, str) and "${" in config else None
+    for key, value in items:
+        found = _interpolation(value, f"{name}.{key}".lstrip("."))
+        if found is not None:
+            return found
+    return None
+
+
+def load_weights(module: torch.nn.Module | torch.optim.Optimizer, state: object,
+                 path: str | Path, entry: str) -> None:
+    """``module.load_state_dict(state)``, the checkpoint's ``entry``; ValueError naming the
+    checkpoint and the entry when the weights do not fit the module its config builds (a
+    crafted or damaged file)."""
+    try:
+        module.load_state_dict(state)
+    except (RuntimeError, ValueError, KeyError, TypeError, AttributeError, IndexError) as err:
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise ValueError(f"checkpoint {str(path)!r}: its {entry} does not fit the network its "
+                         f"config builds: {first}") from None

@@ -7,16 +7,19 @@ error before training starts.
 
 from __future__ import annotations
 
+import dataclasses
+import importlib.util
 import math
+import typing
 from dataclasses import dataclass, field, replace
 
-import torch
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts
-from torchpark.config import ParkingConfig, RewardConfig
+from torchpark.config import ParkingConfig, RewardConfig, check_seed
 from torchpark.curriculum import PAPER_LEVELS
+from torchpark.env import check_device
 
 
 @dataclass
@@ -268,12 +271,27 @@ def override(cfg: TrainConfig, overrides: list[str]) -> TrainConfig:
     """A copy of ``cfg`` with dot-notation overrides applied, their types checked (OmegaConf);
     a ValueError names the field of an unknown key or a wrong type. Ranges: the caller's."""
     try:
-        merged = OmegaConf.merge(OmegaConf.structured(cfg), OmegaConf.from_dotlist(overrides))
+        given = OmegaConf.from_dotlist(overrides)
+        check_flags(OmegaConf.to_container(given))
+        merged = OmegaConf.merge(OmegaConf.structured(cfg), given)
         return OmegaConf.to_object(merged)
     except OmegaConfBaseException as err:  # a type error or an unknown key, by dot name
         key = getattr(err, "full_key", None)
         message = getattr(err, "msg", None) or str(err).splitlines()[0]
         raise ValueError(f"{key}: {message}" if key else message) from None
+
+
+def check_flags(values: dict, schema: type = TrainConfig, prefix: str = "") -> None:
+    """ValueError naming the field where ``values`` (a nested dict of a TrainConfig's fields)
+    gives a bool field anything but true or false: OmegaConf would turn 2, "yes" or "on"
+    into True, which torchpark's own configs refuse."""
+    hints = typing.get_type_hints(schema)
+    for key, value in values.items():
+        kind = hints.get(key)
+        if dataclasses.is_dataclass(kind) and isinstance(value, dict):
+            check_flags(value, kind, f"{prefix}{key}.")
+        elif kind is bool and not isinstance(value, bool):
+            raise ValueError(f"{prefix}{key} must be true or false, got {value!r}")
 
 
 def env_configs(cfg: TrainConfig, training: bool) -> tuple[ParkingConfig, AidsConfig | None]:
@@ -330,17 +348,6 @@ def upgrade_saved(saved: dict) -> dict:
     return upgraded
 
 
-def check_device(device: str, name: str) -> None:
-    """A device string torch parses and this machine has; ValueError naming ``name``."""
-    try:
-        parsed = torch.device(device)
-    except RuntimeError:
-        raise ValueError(f"{name} must be a torch device such as 'cpu' or 'cuda:0', got "
-                         f"{device!r}") from None
-    if parsed.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"{name} is {device!r}, but torch sees no CUDA device here")
-
-
 def _require(ok: bool, name: str, allowed: str, value: object) -> None:
     if not ok:
         raise ValueError(f"{name} must be {allowed}, got {value!r}")
@@ -372,7 +379,10 @@ def _check(cfg: TrainConfig) -> None:
              cfg.optim.lr)
     _require(len(cfg.model.hidden) >= 1 and min(cfg.model.hidden) >= 1, "model.hidden",
              "a non-empty list of ints >= 1", cfg.model.hidden)
-    _require(finite(cfg.model.init_log_std), "model.init_log_std", "finite",
+    # Beyond e^2 the TanhNormal's pre-tanh draws saturate (every action at a bound); beyond
+    # e^88 its std overflows float32 and the first batch's actions are NaN.
+    _require(finite(cfg.model.init_log_std) and -20 <= cfg.model.init_log_std <= 2,
+             "model.init_log_std", "a number in [-20, 2] (the log of the policy's first std)",
              cfg.model.init_log_std)
     _require(cfg.logger.checkpoint_every >= 1, "logger.checkpoint_every", "an int >= 1",
              cfg.logger.checkpoint_every)
@@ -390,7 +400,7 @@ def _check(cfg: TrainConfig) -> None:
              c.success_target)
     _require(c.success_window >= 1, "curriculum.success_window", "an int >= 1",
              c.success_window)
-    _require(cfg.seed >= 0, "seed", "an int >= 0", cfg.seed)
+    check_seed(cfg.seed, "seed")
     check_device(cfg.env.device, "env.device")
     check_agent(cfg)
     n, batch, k = cfg.env.num_envs, cfg.collector.frames_per_batch, cfg.agent.action_repeat
@@ -439,6 +449,9 @@ def _check_dist(cfg: TrainConfig) -> None:
              "workers' normalisers could not be kept consistent: use rpc)", d.collectors)
     _require(d.collectors in COLLECTOR_BACKENDS, "dist.collectors",
              f"one of {list(COLLECTOR_BACKENDS)}", d.collectors)
+    _require(d.collectors != "ray" or importlib.util.find_spec("ray") is not None,
+             "dist.collectors", "direct, process or rpc: ray needs Ray installed (pip install "
+             "-e '.[ray]')", d.collectors)
     _require(d.num_collectors >= 1, "dist.num_collectors", "an int >= 1", d.num_collectors)
     _require(d.collectors != "direct" or d.num_collectors == 1, "dist.num_collectors",
              "1 with dist.collectors=direct (name a backend for several workers)",

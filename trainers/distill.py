@@ -70,6 +70,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import io
 import time
 import typing
 from dataclasses import dataclass
@@ -97,6 +98,7 @@ from torchpark.aids.starts import near_starts_free
 from torchpark.aids.step import AidedState, AidState, aided_control
 from torchpark.config import RewardConfig, check_types, positive, require
 from torchpark.curriculum import PAPER_LEVELS
+from torchpark.files import locked, save_torch, write_text
 from torchpark.runner import run_episodes
 from torchpark.sim.geometry import wrap_angle
 from torchpark.sim.observation import NAV_DIM
@@ -579,19 +581,20 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
         rows.append(row)
         print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                        for k, v in row.items()), flush=True)
-        with open(out / "dagger.csv", "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(row))
-            writer.writeheader()
-            writer.writerows(rows)
+        table = io.StringIO()
+        writer = csv.DictWriter(table, fieldnames=list(row))
+        writer.writeheader()
+        writer.writerows(rows)
+        write_text(out / "dagger.csv", table.getvalue())
         checkpoint = {"config": dataclasses.asdict(scfg), "frames": frames,
                       "actor": actor.state_dict(), "obs_norm": norm.state_dict(),
                       "trained_by": f"distilled{made_of} from {source}: "
                                     f"{iteration + 1} iteration(s) (DAgger after the first), "
                                     f"{frames:,} labelled frames and {approach:,} "
                                     f"final-approach states"}
-        torch.save(checkpoint, out / "checkpoint_final.pt")
+        save_torch(checkpoint, out / "checkpoint_final.pt")
         if score(row) >= max(map(score, rows)):
-            torch.save(checkpoint, out / "checkpoint_best.pt")
+            save_torch(checkpoint, out / "checkpoint_best.pt")
     return out / "checkpoint_final.pt"
 
 
@@ -616,15 +619,15 @@ def main(argv: list[str] | None = None) -> None:
         parser.add_argument(flag, type=kind, default=field.default)
     args = parser.parse_args(argv)
     out = Path(args.out)
-    existing = [name for name in OUTPUTS if (out / name).exists()]
-    if existing and not args.overwrite:
-        parser.error(f"{out / existing[0]} exists ({len(existing)} of the outputs do): pass "
-                     f"another --out, or --overwrite to replace them")
     try:
         cfg = DistillConfig(**{f.name: getattr(args, f.name)
                                for f in dataclasses.fields(DistillConfig)})
-        out.mkdir(parents=True, exist_ok=True)
-        print(distill(args.teacher, out, cfg))
+        with locked(out, "--out"):
+            existing = [name for name in OUTPUTS if (out / name).exists()]
+            if existing and not args.overwrite:
+                raise ValueError(f"{out / existing[0]} exists ({len(existing)} of the outputs "
+                                 f"do): pass another --out, or --overwrite to replace them")
+            print(distill(args.teacher, out, cfg))
     except (ValueError, OSError) as err:
         parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
 

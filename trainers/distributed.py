@@ -101,11 +101,11 @@ def launch(entry: Callable[..., Any], args: Sequence[Any], world_size: int) -> A
 
 def rank_seed(seed: int, rank: int, size: int) -> int:
     """Rank ``rank``'s env seed: ``seed`` itself in a one-process run, else an independent
-    stream spawned from it (numpy's SeedSequence: no two (seed, rank) pairs share one)."""
+    stream spawned from it (numpy's SeedSequence), an int in [0, 2**32) as every torchpark
+    seed (``torchpark.config.SEED_LIMIT``)."""
     if size == 1:
         return seed
-    return int(np.random.SeedSequence(seed, spawn_key=(rank,)).generate_state(1, np.uint64)[0]
-               % 2**62)
+    return int(np.random.SeedSequence(seed, spawn_key=(rank,)).generate_state(1, np.uint32)[0])
 
 
 def all_reduce_sum_(tensor: torch.Tensor) -> torch.Tensor:

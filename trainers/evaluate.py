@@ -25,7 +25,9 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 from pathlib import Path
+from typing import NamedTuple
 
 import torch
 from omegaconf import OmegaConf
@@ -33,12 +35,21 @@ from omegaconf.errors import OmegaConfBaseException
 from torch.utils._pytree import tree_map_only
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from torchpark.config import SEED_LIMIT, is_integer
 from torchpark.curriculum import PAPER_LEVELS
+from torchpark.files import locked, write_text
 from torchpark.media.recording import record_video
 from torchpark.runner import Episodes, run_episodes
-from trainers.checkpoint import load_checkpoint
-from trainers.config import TrainConfig, check_agent, check_device, override, upgrade_saved
-from trainers.utils import make_eval_env, make_policy
+from trainers.checkpoint import load_checkpoint, load_weights
+from trainers.config import (
+    TrainConfig,
+    check_agent,
+    check_device,
+    check_flags,
+    override,
+    upgrade_saved,
+)
+from trainers.utils import build_models, make_eval_env
 
 # Table 2 of the paper: success rate per curriculum phase (occupancy level).
 PAPER_SUCCESS = dict(zip(PAPER_LEVELS, (0.20, 0.52, 0.65, 0.64, 0.59, 0.62), strict=True))
@@ -52,6 +63,9 @@ RESULTS = ("occupancy", "episodes", "success", "success_4e-3", "success_4e-2", "
            "paper_success")
 COLUMNS = COMPOSITION + RESULTS
 # The agent's fields (trainers.config.AgentConfig) --aids may set: aids around the network.
+# --episodes: lots per level, all stepped at once (a typo must not allocate the machine's
+# memory).
+MAX_EPISODES = 1_000_000
 EVALUATION_AIDS = ("emergency_brake", "steer_clear", "brake_margin", "docking",
                    "docking_reach", "docking_lateral", "docking_heading")
 
@@ -60,11 +74,12 @@ def load(path: str) -> tuple[TrainConfig, dict]:
     """The checkpoint's training config and contents (tensors on the CPU); ValueError naming
     the path when it is not a torchpark checkpoint."""
     checkpoint = load_checkpoint(path)
+    saved = upgrade_saved(checkpoint["config"])
     try:
-        merged = OmegaConf.merge(OmegaConf.structured(TrainConfig),
-                                 upgrade_saved(checkpoint["config"]))
+        check_flags(saved)
+        merged = OmegaConf.merge(OmegaConf.structured(TrainConfig), saved)
         return OmegaConf.to_object(merged), checkpoint
-    except OmegaConfBaseException as err:
+    except (OmegaConfBaseException, ValueError) as err:
         raise ValueError(f"checkpoint {str(path)!r} has an invalid config: "
                          f"{str(err).splitlines()[0]}") from None
 
@@ -151,6 +166,57 @@ def level_row(run: Episodes, occupancy: float) -> dict[str, float]:
     }
 
 
+class Agent(NamedTuple):
+    """A checkpoint's policy ready to run: its config (with the evaluation's aids and
+    device), contents (tensors on that device), actor, and what it is made of."""
+
+    cfg: TrainConfig
+    checkpoint: dict
+    actor: torch.nn.Module
+    made_of: dict
+
+
+def load_agent(path: str, device: str | None = None, aids: list[str] | None = None,
+               sample: int | None = None) -> Agent:
+    """The checkpoint's agent (see :func:`evaluate` for the arguments); ValueError naming
+    the file or the argument that does not fit."""
+    if sample is not None and (not is_integer(sample) or not 0 <= sample < SEED_LIMIT):
+        raise ValueError(f"sample must be None or a torch seed (an int in [0, 2**32)), got "
+                         f"{sample!r}")
+    cfg, checkpoint = load(path)
+    if aids:
+        cfg = with_aids(cfg, aids)
+    if device is not None:
+        cfg.env.device = device
+    check_device(cfg.env.device, "the evaluation's device (the training's unless --device)")
+    checkpoint = tree_map_only(torch.Tensor, lambda t: t.to(cfg.env.device), checkpoint)
+    actor, _ = build_models(cfg)
+    load_weights(actor, checkpoint["actor"], path, "actor")
+    return Agent(cfg, checkpoint, actor.to(cfg.env.device),
+                 composition(cfg, checkpoint, added=bool(aids), sampled=sample))
+
+
+def evaluate_agent(agent: Agent, episodes: int, levels=PAPER_LEVELS, seed: int = 1,
+                   sample: int | None = None) -> list[dict[str, float]]:
+    """The table's rows, one per level (:func:`evaluate_level`)."""
+    return [{**agent.made_of, **evaluate_level(agent.actor, agent.checkpoint, agent.cfg, level,
+                                               episodes, seed, sample)} for level in levels]
+
+
+def record_rollouts(agent: Agent, out: Path, video_format: str = "mp4",
+                    levels=PAPER_LEVELS, seed: int = 1, sample: int | None = None
+                    ) -> list[Path]:
+    """One rollout video per level, ``out/rollout_occ{percent}.{video_format}``, each written
+    whole or not at all."""
+    paths = []
+    for level in levels:
+        env = make_eval_env(agent.cfg, agent.checkpoint["obs_norm"], level, 1, seed)
+        with set_exploration_type(exploration(sample)):
+            paths.append(record_video(env, agent.actor,
+                                      out / f"rollout_occ{round(100 * level)}.{video_format}"))
+    return paths
+
+
 def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
              videos: Path | None = None, video_format: str = "mp4",
              device: str | None = None, aids: list[str] | None = None,
@@ -160,26 +226,10 @@ def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
     where the envs and the policy run (default: the checkpoint's training device). ``aids``:
     NAME=VALUE settings of the agent's aids (:func:`with_aids`). ``sample``: a torch seed,
     actions drawn from the policy's distribution (seeded so at each level), not its mode."""
-    if sample is not None and (isinstance(sample, bool) or not isinstance(sample, int)
-                               or sample < 0):
-        raise ValueError(f"sample must be None or a torch seed (an int >= 0), got {sample!r}")
-    cfg, checkpoint = load(path)
-    if aids:
-        cfg = with_aids(cfg, aids)
-    if device is not None:
-        cfg.env.device = device
-    check_device(cfg.env.device, "the evaluation's device (the training's unless --device)")
-    checkpoint = tree_map_only(torch.Tensor, lambda t: t.to(cfg.env.device), checkpoint)
-    actor = make_policy(cfg, checkpoint["actor"])
-    rows = []
-    made_of = composition(cfg, checkpoint, added=bool(aids), sampled=sample)
-    for level in levels:
-        rows.append({**made_of,
-                     **evaluate_level(actor, checkpoint, cfg, level, episodes, seed, sample)})
-        if videos is not None:
-            env = make_eval_env(cfg, checkpoint["obs_norm"], level, 1, seed)
-            with set_exploration_type(exploration(sample)):
-                record_video(env, actor, videos / f"rollout_occ{round(100 * level)}.{video_format}")
+    agent = load_agent(path, device, aids, sample)
+    rows = evaluate_agent(agent, episodes, levels, seed, sample)
+    if videos is not None:
+        record_rollouts(agent, videos, video_format, levels, seed, sample)
     return rows
 
 
@@ -199,14 +249,15 @@ def to_markdown(rows: list[dict[str, float]]) -> str:
 
 
 def write_tables(rows: list[dict], out: Path) -> str:
-    """Write ``evaluation.md`` and ``evaluation.csv`` (COLUMNS) into ``out``; returns the
-    Markdown."""
+    """Write ``evaluation.md`` and ``evaluation.csv`` (COLUMNS) into ``out``, each whole or
+    not at all; returns the Markdown."""
     table = to_markdown(rows)
-    (out / "evaluation.md").write_text(table + "\n")
-    with open(out / "evaluation.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=COLUMNS)
+    writer.writeheader()
+    writer.writerows(rows)
+    write_text(out / "evaluation.csv", text.getvalue())
+    write_text(out / "evaluation.md", table + "\n")
     return table
 
 
@@ -229,28 +280,35 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--aids", nargs="+", default=[], metavar="NAME=VALUE",
                         help="put the policy under other aids: " + ", ".join(EVALUATION_AIDS))
     args = parser.parse_args(argv)
-    if args.episodes < 1:
-        parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    if not 1 <= args.episodes <= MAX_EPISODES:
+        parser.error(f"--episodes must be in [1, {MAX_EPISODES}], got {args.episodes}")
     if args.sample is not None and args.sample < 0:
         parser.error(f"--sample must be a torch seed >= 0, got {args.sample}")
+    if not 0 <= args.seed < SEED_LIMIT:
+        parser.error(f"--seed must be an int in [0, 2**32), got {args.seed}")
+    if args.sample is not None and args.sample >= SEED_LIMIT:
+        parser.error(f"--sample must be a torch seed < 2**32, got {args.sample}")
     out = Path(args.out) if args.out else Path(args.checkpoint).parent
-    outputs = [out / "evaluation.md", out / "evaluation.csv"]
-    if args.videos != "none":
-        outputs += [out / f"rollout_occ{round(100 * level)}.{args.videos}"
-                    for level in PAPER_LEVELS]
-    existing = [str(p) for p in outputs if p.exists()]
-    if existing and not args.overwrite:
-        parser.error(f"{existing[0]} exists ({len(existing)} of the outputs do): pass --out "
-                     f"another directory, or --overwrite to replace them")
+    videos = None if args.videos == "none" else args.videos
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        rows = evaluate(args.checkpoint, args.episodes, seed=args.seed,
-                        videos=None if args.videos == "none" else out,
-                        video_format=args.videos, device=args.device, aids=args.aids,
-                        sample=args.sample)
+        with locked(out, "--out"):
+            outputs = [out / "evaluation.md", out / "evaluation.csv"]
+            if videos is not None:
+                outputs += [out / f"rollout_occ{round(100 * level)}.{videos}"
+                            for level in PAPER_LEVELS]
+            existing = [str(p) for p in outputs if p.exists()]
+            if existing and not args.overwrite:
+                raise ValueError(f"{existing[0]} exists ({len(existing)} of the outputs do): "
+                                 f"pass --out another directory, or --overwrite to replace "
+                                 f"them")
+            agent = load_agent(args.checkpoint, args.device, args.aids, args.sample)
+            rows = evaluate_agent(agent, args.episodes, seed=args.seed, sample=args.sample)
+            print(to_markdown(rows), flush=True)  # the table first: whatever the disk says
+            write_tables(rows, out)
+            if videos is not None:
+                record_rollouts(agent, out, videos, seed=args.seed, sample=args.sample)
     except (ValueError, OSError) as err:
         parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
-    print(write_tables(rows, out))
 
 
 if __name__ == "__main__":

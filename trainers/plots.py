@@ -22,6 +22,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from torchpark.files import write_file
+
 Scalars = dict[str, tuple[np.ndarray, np.ndarray]]
 LOSSES = ("loss/objective", "loss/critic", "loss/kl_approx", "loss/clip_fraction")
 # Stable-Baselines3's names for the same curves (trainers.sb3_paper's run; its episode
@@ -39,20 +41,28 @@ def read_scalars(run_dir: str | Path) -> Scalars:
     resumed from a checkpoint writes a new file that logs again the frames after it, so each
     file's values replace the earlier files' from its first frame on. Stable-Baselines3's
     tags are also given their torchpark names (``SB3_TAGS``)."""
+    if not Path(run_dir).is_dir():
+        raise FileNotFoundError(f"run_dir {str(run_dir)!r} is not a directory")
     files = sorted((f for f in Path(run_dir).rglob("events.out.tfevents.*") if f.is_file()),
-                   key=lambda f: (int(f.name.split(".")[3]), f.name))
+                   key=lambda f: (_timestamp(f), f.name))
     if not files:
         raise FileNotFoundError(f"no TensorBoard event files under {str(run_dir)!r}")
     scalars: dict[str, list] = {}
     for file in files:
         events = EventAccumulator(str(file), size_guidance={"scalars": 0})
-        events.Reload()
+        try:
+            events.Reload()
+        except Exception as err:  # TensorBoard's readers raise their own kinds
+            raise ValueError(f"{str(file)!r} is not a readable TensorBoard event file: "
+                             f"{type(err).__name__}") from None
         for tag in events.Tags()["scalars"]:
             new = [(e.step, e.value) for e in events.Scalars(tag)]
             if new:
                 first = min(step for step, _ in new)
                 kept = [pair for pair in scalars.get(tag, []) if pair[0] < first]
                 scalars[tag] = kept + new
+    if not scalars:
+        raise ValueError(f"the event files under {str(run_dir)!r} hold no scalars")
     out = {}
     for tag, pairs in scalars.items():
         pairs.sort()
@@ -62,6 +72,13 @@ def read_scalars(run_dir: str | Path) -> Scalars:
         if sb3 in out and name not in out:
             out[name] = out[sb3]
     return out
+
+
+def _timestamp(file: Path) -> int:
+    """The write time in an event file's name (events.out.tfevents.TIME.HOST...); 0 when it
+    has none (such a file is read first)."""
+    parts = file.name.split(".")
+    return int(parts[3]) if len(parts) > 3 and parts[3].isdigit() else 0
 
 
 def smooth(values: np.ndarray, window: int) -> np.ndarray:
@@ -150,7 +167,9 @@ def read_dagger(path: str | Path) -> dict[str, np.ndarray]:
             reader = csv.DictReader(f)
             missing = [c for c in DAGGER_COLUMNS if c not in (reader.fieldnames or ())]
             rows = list(reader)
-    except UnicodeDecodeError:
+    except OSError as err:
+        raise ValueError(f"{str(path)!r} cannot be read: {err.strerror or err}") from None
+    except (UnicodeDecodeError, csv.Error):
         raise ValueError(f"{str(path)!r} is not a trainers.distill dagger.csv: not "
                          f"text") from None
     if missing:
@@ -199,15 +218,23 @@ def main(argv: list[str] | None = None) -> None:
             figures = [("training_curves.png", plot_dagger(read_dagger(dagger)))]
         else:
             scalars = read_scalars(args.run_dir)
-            figures = [("training_curves.png", plot_training_curves(scalars)),
-                       ("losses.png", plot_losses(scalars))]
+            figures = [("training_curves.png", plot_training_curves(scalars))]
+            if any(tag in scalars for tag in LOSSES):
+                figures.append(("losses.png", plot_losses(scalars)))
     except (ValueError, FileNotFoundError) as err:
-        parser.error(str(err))
-    out.mkdir(parents=True, exist_ok=True)
-    for name, fig in figures:
-        fig.savefig(out / name, dpi=120)
-        plt.close(fig)
-        print(out / name)
+        parser.error(str(err).splitlines()[0])
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        parser.exit(2, f"{parser.prog}: error: --out {str(out)!r} cannot be created: "
+                       f"{err.strerror or err}\n")
+    try:
+        for name, fig in figures:
+            write_file(out / name, lambda tmp, fig=fig: fig.savefig(tmp, dpi=120))
+            plt.close(fig)
+            print(out / name)
+    except OSError as err:
+        parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
 
 
 if __name__ == "__main__":

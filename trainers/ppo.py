@@ -9,8 +9,8 @@ logger.log_dir=/tmp/runs``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
-import os
 import time
 from pathlib import Path
 
@@ -24,8 +24,9 @@ from torchrl.record.loggers import TensorboardLogger
 from tqdm import tqdm
 
 from torchpark import OccupancyCurriculum
+from torchpark.files import locked, save_torch
 from trainers.anchor import AnchoredPPOLoss
-from trainers.checkpoint import EVALUATION_KEYS, RESUME_KEYS, load_checkpoint
+from trainers.checkpoint import EVALUATION_KEYS, RESUME_KEYS, load_checkpoint, load_weights
 from trainers.collection import RankCollection
 from trainers.config import PRESETS, TrainConfig, load_config, upgrade_saved
 from trainers.distributed import (
@@ -70,27 +71,28 @@ def episode_stats(ended: TensorDict | None, repeat: int = 1) -> dict[str, float]
 RUN_FILES = ("checkpoint_*.pt", "events.out.tfevents.*")
 
 
-def check_log_dir(path: Path, resume: str | None, overwrite: bool) -> None:
-    """Make the run directory; refuse one that holds another run's files, unless this run
-    resumes a checkpoint from it (it goes on with that run) or ``overwrite`` (they are
-    deleted)."""
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise ValueError(f"logger.log_dir {str(path)!r} cannot be created: {err}") from err
-    if not os.access(path, os.W_OK):
-        raise ValueError(f"logger.log_dir {str(path)!r} is not writable")
+def run_dir(cfg: TrainConfig) -> Path:
+    return Path(cfg.logger.log_dir) / cfg.logger.exp_name
+
+
+def check_log_dir(path: Path, resume: str | None, overwrite: bool,
+                  reads: tuple[str | None, ...] = ()) -> list[Path]:
+    """The files of another run in the run directory ``path`` (made and locked by the
+    caller) that this run replaces: none when it holds none, or when this run resumes a
+    checkpoint from it (it goes on with that run); with ``overwrite``, the files a later
+    step deletes once every check of the run has passed (never one of the files the run
+    ``reads``); otherwise a ValueError."""
     existing = sorted(f for pattern in RUN_FILES for f in path.glob(pattern))
     continues = resume is not None and Path(resume).resolve().parent == path.resolve()
     if not existing or continues:
-        return
+        return []
     if not overwrite:
         raise ValueError(f"{str(path)!r} already holds a run ({len(existing)} files, e.g. "
                          f"{existing[0].name}): choose another logger.exp_name or "
                          f"logger.log_dir, --resume one of its checkpoints, or pass "
                          f"--overwrite to delete them")
-    for f in existing:
-        f.unlink()
+    kept = {Path(p).resolve() for p in reads if p is not None}
+    return [f for f in existing if f.resolve() not in kept]
 
 
 def recompute_log_prob_(actor: torch.nn.Module, batch: TensorDict, key: str) -> None:
@@ -192,14 +194,16 @@ def config_differences(saved: dict, cfg: TrainConfig, section: str, free: tuple 
 
 
 def prepare(cfg: TrainConfig, resume: str | None, overwrite: bool, init: str | None = None
-            ) -> None:
-    """What is checked before any rank starts: the run directory (:func:`check_log_dir`),
-    that the checkpoint to resume was trained with the same task, agent and model, and that
-    the checkpoint to start from (``init``) has the run's agent and model (its std may
-    differ: the run's ``model.init_log_std`` replaces it)."""
-    check_log_dir(Path(cfg.logger.log_dir) / cfg.logger.exp_name, resume, overwrite)
+            ) -> list[Path]:
+    """What is checked before any rank starts, in the run directory the caller has locked:
+    the directory (:func:`check_log_dir`), that the checkpoint to resume was trained with the
+    same task, agent and model, and that the checkpoint to start from (``init``) has the
+    run's agent and model (its std may differ: the run's ``model.init_log_std`` replaces
+    it). Returns the files of another run that ``overwrite`` replaces: deleted by the run
+    once it has loaded everything it reads (:func:`_train`), not here."""
     if resume is not None and init is not None:
         raise ValueError("--resume continues a run and --init starts one: pass one of them")
+    stale = check_log_dir(run_dir(cfg), resume, overwrite, reads=(resume, init))
     if cfg.loss.anchor_coef > 0 and resume is None and init is None:
         raise ValueError(f"loss.anchor_coef={cfg.loss.anchor_coef} holds the actor to the one "
                          f"the run starts from: pass --init CHECKPOINT")
@@ -217,48 +221,57 @@ def prepare(cfg: TrainConfig, resume: str | None, overwrite: bool, init: str | N
             if listed:
                 raise ValueError(f"checkpoint {path!r} was trained with another {section} "
                                  f"config: {listed}")
+    return stale
 
 
 def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False,
           init: str | None = None) -> Path:
-    """Run PPO; returns the path of the final checkpoint. A run directory that holds another
-    run is refused unless ``overwrite`` (see :func:`check_log_dir`). ``init``: a checkpoint
-    (e.g. a distilled student, ``trainers.distill``) whose actor's mean and observation
-    statistics the run starts from, its std reset to ``model.init_log_std``
+    """Run PPO; returns the path of the final checkpoint. The run directory is locked for
+    the whole run (a second run into it is refused: ``torchpark.files.locked``); one that
+    holds another run is refused unless ``overwrite``, whose files are deleted only once
+    the run has checked and loaded everything (see :func:`check_log_dir`). ``init``: a
+    checkpoint (e.g. a distilled student, ``trainers.distill``) whose actor's mean and
+    observation statistics the run starts from, its std reset to ``model.init_log_std``
     (:func:`~trainers.utils.reset_exploration`) and the statistics frozen, with a fresh
     critic, optimiser and curriculum.
 
     ``dist.world_size`` > 1: data-parallel (``trainers.distributed``). Under a launcher
-    (torchrun) this process is one rank and rank 0 checks the run first; without one, the
-    checks run here and torch's elastic agent starts the ranks.
+    (torchrun) this process is one rank and rank 0 locks and checks the run first; without
+    one, the checks run here, under the lock, and torch's elastic agent starts the ranks.
     """
     size = cfg.dist.world_size
     if launched():
         world = join(size, cfg.env.device)
-        error = None
-        if world.main:
-            try:
-                prepare(cfg, resume, overwrite, init)
-            except ValueError as err:
-                error = str(err)
-        error = all_gather(error, world)[0]
-        if error is not None:
-            leave(world)
-            raise ValueError(error)
-        return _train(cfg, resume, world, init)
-    prepare(cfg, resume, overwrite, init)
-    if size > 1:
-        return launch(_launched_rank, (cfg, resume, init), size)
-    return _train(cfg, resume, World(device=torch.device(cfg.env.device)), init)
+        with contextlib.ExitStack() as held:
+            error, stale = None, []
+            if world.main:
+                try:
+                    held.enter_context(locked(run_dir(cfg), "logger.log_dir"))
+                    stale = prepare(cfg, resume, overwrite, init)
+                except ValueError as err:
+                    error = str(err)
+            error = all_gather(error, world)[0]
+            if error is not None:
+                leave(world)
+                raise ValueError(error)
+            return _train(cfg, resume, world, init, stale)
+    with locked(run_dir(cfg), "logger.log_dir"):
+        stale = prepare(cfg, resume, overwrite, init)
+        if size > 1:
+            return launch(_launched_rank, (cfg, resume, init, stale), size)
+        return _train(cfg, resume, World(device=torch.device(cfg.env.device)), init, stale)
 
 
-def _launched_rank(cfg: TrainConfig, resume: str | None, init: str | None) -> Path:
-    """A rank started by :func:`launch` (the run was checked before)."""
-    return _train(cfg, resume, join(cfg.dist.world_size, cfg.env.device), init)
+def _launched_rank(cfg: TrainConfig, resume: str | None, init: str | None,
+                   stale: list[Path]) -> Path:
+    """A rank started by :func:`launch` (the run was checked, and is locked, by its
+    parent)."""
+    return _train(cfg, resume, join(cfg.dist.world_size, cfg.env.device), init, stale)
 
 
-def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None) -> Path:
-    run_dir = Path(cfg.logger.log_dir) / cfg.logger.exp_name
+def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
+           stale: list[Path]) -> Path:
+    directory = run_dir(cfg)
     checkpoint = load_checkpoint(resume, world.device, RESUME_KEYS) if resume else None
     start = load_checkpoint(init, world.device) if init else None
     # What the actor started from, kept through resumes (the evaluator's "policy" column).
@@ -284,8 +297,10 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None)
     anchor = None
     if cfg.loss.anchor_coef > 0:  # the actor the run started from (prepare checked there is one)
         anchor = build_models(cfg)[0].to(device)
-        anchor.load_state_dict(checkpoint["anchor"] if checkpoint is not None
-                               else start["actor"])
+        if checkpoint is not None:
+            load_weights(anchor, checkpoint["anchor"], resume, "anchor")
+        else:
+            load_weights(anchor, start["actor"], init, "actor")
         loss_module = AnchoredPPOLoss(actor, critic, anchor, cfg.loss.anchor_coef,
                                       cfg.loss.anchor_reach, **loss_options)
     else:
@@ -294,12 +309,11 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None)
                     average_gae=False)
     optim = torch.optim.Adam(loss_module.parameters(), lr=cfg.optim.lr)
     if start is not None:
-        actor.load_state_dict(start["actor"])
+        load_weights(actor, start["actor"], init, "actor")
         reset_exploration(actor, cfg.model)
     if checkpoint is not None:
-        actor.load_state_dict(checkpoint["actor"])
-        critic.load_state_dict(checkpoint["critic"])
-        optim.load_state_dict(checkpoint["optim"])
+        for module, entry in ((actor, "actor"), (critic, "critic"), (optim, "optim")):
+            load_weights(module, checkpoint[entry], resume, entry)
     # Only DDP's forward all-reduces the gradients: the loss is always computed through it.
     loss_fn = DistributedDataParallel(loss_module) if world.parallel else loss_module
     if world.parallel:  # each rank's own stream for the policy's samples, the minibatches
@@ -324,13 +338,16 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None)
         # The started actor's inputs stay on its own scale: a few batches of the new run's
         # statistics shift them enough to undo a millimetre-precise student.
         collection.freeze_normaliser()
+    if world.main:  # --overwrite: everything is loaded and built; the other run's files go
+        for f in stale:
+            f.unlink(missing_ok=True)
     logger = TensorboardLogger(exp_name=cfg.logger.exp_name, log_dir=cfg.logger.log_dir) \
         if world.main else None
     curriculum = next(t for t in env.transform if isinstance(t, OccupancyCurriculum))
     mini_batch = cfg.loss.mini_batch_size // world.size  # each rank's share
 
     def save(name: str) -> Path:
-        path = run_dir / name
+        path = directory / name
         check_ranks_agree([actor, critic], world)
         states = None
         if collection.direct:
@@ -349,8 +366,7 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None)
             state["started_from"] = started_from
             state["trained_by"] = (f"PPO ({cfg.logger.exp_name} run, {frames:,} frames) "
                                    f"from {started_from}")
-        torch.save(state, path)
-        return path
+        return save_torch(state, path)
 
     next_checkpoint = (frames // cfg.logger.checkpoint_every + 1) * cfg.logger.checkpoint_every
     if cfg.env.compile_step and world.main:
@@ -358,49 +374,51 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None)
               flush=True)
     bar = tqdm(total=cfg.collector.total_frames, initial=frames, unit="frame", smoothing=0.1,
                disable=not world.main)
-    collect_start = time.perf_counter()
-    for batch in collector:
-        collect_time = time.perf_counter() - collect_start
-        batch_frames = batch.numel() * repeat * world.size
-        frames += batch_frames
-        train_start = time.perf_counter()
-        with torch.no_grad():
-            advantage(batch)
-        recompute_log_prob_(actor, batch, loss_module.tensor_keys.sample_log_prob)
-        flat = batch.reshape(-1)
-        for _ in range(cfg.loss.ppo_epochs):
-            for index in torch.randperm(flat.shape[0], device=device).split(mini_batch):
-                losses = ppo_step(loss_fn, optim, flat[index], cfg.optim.max_grad_norm)
-        collector.update_policy_weights_()
-        collection.sync_normalisers()
-        ended = gather_episodes(batch, world)
-        train_time = time.perf_counter() - train_start
-
-        if world.main:
-            scalars = {
-                **episode_stats(ended, repeat),
-                "curriculum/occupancy": curriculum.occupancy,
-                "curriculum/phase": curriculum.phase,
-                "curriculum/success_threshold": env.base_env.success_threshold,
-                "loss/objective": losses["loss_objective"].item(),
-                "loss/critic": losses["loss_critic"].item(),
-                "loss/kl_approx": losses["kl_approx"].item(),
-                **({"loss/anchor": losses["loss_anchor"].item()} if anchor is not None else {}),
-                "loss/clip_fraction": losses["clip_fraction"].item(),
-                "time/collect_fps": batch_frames / collect_time,
-                "time/train_fps": batch_frames / train_time,
-                "time/fps": batch_frames / (collect_time + train_time),
-            }
-            for key, value in scalars.items():
-                logger.log_scalar(key, value, step=frames)
-            bar.update(batch_frames)
-            bar.set_postfix(phase=curriculum.phase,
-                            success=f"{scalars.get('episode/success_rate', float('nan')):.2f}")
-        if frames >= next_checkpoint:
-            save(f"checkpoint_{frames}.pt")
-            next_checkpoint += cfg.logger.checkpoint_every
+    try:  # the bar is closed before any error is printed
         collect_start = time.perf_counter()
-    bar.close()
+        for batch in collector:
+            collect_time = time.perf_counter() - collect_start
+            batch_frames = batch.numel() * repeat * world.size
+            frames += batch_frames
+            train_start = time.perf_counter()
+            with torch.no_grad():
+                advantage(batch)
+            recompute_log_prob_(actor, batch, loss_module.tensor_keys.sample_log_prob)
+            flat = batch.reshape(-1)
+            for _ in range(cfg.loss.ppo_epochs):
+                for index in torch.randperm(flat.shape[0], device=device).split(mini_batch):
+                    losses = ppo_step(loss_fn, optim, flat[index], cfg.optim.max_grad_norm)
+            collector.update_policy_weights_()
+            collection.sync_normalisers()
+            ended = gather_episodes(batch, world)
+            train_time = time.perf_counter() - train_start
+
+            if world.main:
+                scalars = {
+                    **episode_stats(ended, repeat),
+                    "curriculum/occupancy": curriculum.occupancy,
+                    "curriculum/phase": curriculum.phase,
+                    "curriculum/success_threshold": env.base_env.success_threshold,
+                    "loss/objective": losses["loss_objective"].item(),
+                    "loss/critic": losses["loss_critic"].item(),
+                    "loss/kl_approx": losses["kl_approx"].item(),
+                    **({"loss/anchor": losses["loss_anchor"].item()} if anchor is not None else {}),
+                    "loss/clip_fraction": losses["clip_fraction"].item(),
+                    "time/collect_fps": batch_frames / collect_time,
+                    "time/train_fps": batch_frames / train_time,
+                    "time/fps": batch_frames / (collect_time + train_time),
+                }
+                for key, value in scalars.items():
+                    logger.log_scalar(key, value, step=frames)
+                bar.update(batch_frames)
+                bar.set_postfix(phase=curriculum.phase,
+                                success=f"{scalars.get('episode/success_rate', float('nan')):.2f}")
+            if frames >= next_checkpoint:
+                save(f"checkpoint_{frames}.pt")
+                next_checkpoint += cfg.logger.checkpoint_every
+            collect_start = time.perf_counter()
+    finally:
+        bar.close()
     final = save("checkpoint_final.pt")
     collection.shutdown()
     del loss_fn  # DDP's reducer goes before its process group
@@ -423,7 +441,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         path = train(load_config(args.preset, args.overrides), resume=args.resume,
                      overwrite=args.overwrite, init=args.init)
-    except ValueError as err:
+    except (ValueError, OSError) as err:
         parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
     print(f"final checkpoint: {path}")
 

@@ -11,16 +11,20 @@ Why SB3 and not ``trainers.ppo --preset paper``: it is what the paper ran, and o
 it is faster (single thread, compiled step: 724 frames/s against 244 for the torchrl
 preset's one-env collector). The env is the paper's: no aid, uniform starts, C < 4e-4.
 
-Checkpoints (``--checkpoint-every`` frames, at rollout boundaries) hold the SB3 model
-(``model.zip``: weights and Adam state) and ``state.pt`` (tensors and numbers only: the env's
-snapshot, the next observation, torch's and numpy's random states, the frame count), so that
-``--resume`` goes on exactly as if the run had not stopped.
+A checkpoint (``--checkpoint-every`` frames, at rollout boundaries) is one file,
+``state.pt``, written whole or not at all (``torchpark.files``): the policy's weights and
+Adam state, the env's snapshot, the next observation, torch's and numpy's random states and
+the frame count, tensors and numbers only, so that ``--resume`` goes on exactly as if the
+run had not stopped and a run killed at any instant leaves the previous checkpoint whole.
+Beside it, ``model.zip`` is the same policy for Stable-Baselines3's ``PPO.load``, an export
+this script never reads back: ``PPO.load`` unpickles (cloudpickle) entries of the zip's data,
+which runs whatever code a crafted file holds, where ``torch.load(weights_only=True)`` runs
+none. The run's directory is locked while it writes there (a second run is refused).
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 
@@ -33,16 +37,19 @@ from torchrl.envs import TransformedEnv
 
 import torchpark  # noqa: F401  (registers torchpark/Parking-v0)
 from torchpark import ParkingEnv
+from torchpark.config import SEED_LIMIT
 from torchpark.curriculum import PAPER_LEVELS
+from torchpark.files import locked, save_torch, write_file
 from torchpark.runner import run_episodes
-from trainers.evaluate import PAPER_SUCCESS, level_row, write_tables
+from trainers.checkpoint import load_weights
+from trainers.evaluate import MAX_EPISODES, PAPER_SUCCESS, level_row, to_markdown, write_tables
 
 MODEL, STATE = "model.zip", "state.pt"
 
 
-def make_env(seed: int) -> gymnasium.Env:
+def make_env(seed: int, compile_step: bool = True) -> gymnasium.Env:
     """The paper's env, one lot, its step compiled (the same numbers, faster)."""
-    return gymnasium.make("torchpark/Parking-v0", seed=seed, compile_step=True)
+    return gymnasium.make("torchpark/Parking-v0", seed=seed, compile_step=compile_step)
 
 
 def parking_env(model: PPO) -> ParkingEnv:
@@ -86,17 +93,16 @@ class PaperSchedule(BaseCallback):
 
 
 def save(model: PPO, out: Path) -> None:
-    """The model and everything else an exact resume needs (see the module's docstring),
-    each written to a temporary file first and then moved into place, so that a run killed
-    while saving leaves the previous checkpoint whole."""
-    model.save(out / f"tmp_{MODEL}")
-    torch.save({"frames": model.num_timesteps, "env": parking_env(model).snapshot(),
+    """The checkpoint (see the module's docstring): ``state.pt``, then the ``model.zip``
+    export, each written whole or not at all."""
+    save_torch({"frames": model.num_timesteps, "updates": model._n_updates,
+                "policy": model.policy.state_dict(),
+                "optimizer": model.policy.optimizer.state_dict(),
+                "env": parking_env(model).snapshot(),
                 "last_obs": torch.as_tensor(model._last_obs),
                 "episode_starts": torch.as_tensor(model._last_episode_starts),
-                "rng": torch.get_rng_state(), "numpy_rng": numpy_rng_state()},
-               out / f"tmp_{STATE}")
-    os.replace(out / f"tmp_{STATE}", out / STATE)
-    os.replace(out / f"tmp_{MODEL}", out / MODEL)
+                "rng": torch.get_rng_state(), "numpy_rng": numpy_rng_state()}, out / STATE)
+    write_file(out / MODEL, model.save)
 
 
 def numpy_rng_state() -> dict:
@@ -111,15 +117,50 @@ def set_numpy_rng_state(state: dict) -> None:
                          state["has_gauss"], state["cached"]))
 
 
+STATE_KEYS = frozenset({"frames", "updates", "policy", "optimizer", "env", "last_obs",
+                        "episode_starts", "rng", "numpy_rng"})
+
+
+def load_state(out: Path) -> dict:
+    """``out/state.pt``, tensors and plain data only; ValueError naming the file when it is
+    not a whole checkpoint of this script."""
+    path = out / STATE
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # any unreadable file: torch raises many kinds
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise ValueError(f"{str(path)!r} is not a checkpoint of trainers.sb3_paper: "
+                         f"{first}") from None
+    missing = sorted(STATE_KEYS - set(state)) if isinstance(state, dict) else ["all"]
+    if missing:
+        raise ValueError(f"{str(path)!r} is not a checkpoint of trainers.sb3_paper: it lacks "
+                         f"{missing}")
+    return state
+
+
+def new_model(seed: int, out: Path | None = None, compile_step: bool = True) -> PPO:
+    """SB3's PPO with its defaults on the paper's env (TensorBoard logs in ``out``)."""
+    return PPO("MlpPolicy", make_env(seed, compile_step), seed=seed, device="cpu",
+               tensorboard_log=None if out is None else str(out))
+
+
+def load_policy(model: PPO, state: dict, out: Path) -> None:
+    """The checkpoint's weights and Adam state into ``model``."""
+    load_weights(model.policy, state["policy"], out / STATE, "policy")
+    load_weights(model.policy.optimizer, state["optimizer"], out / STATE, "optimizer")
+    model.num_timesteps, model._n_updates = int(state["frames"]), int(state["updates"])
+
+
 def resume(out: Path, seed: int) -> PPO:
     """The model saved in ``out``, its env and random state where the run stopped."""
-    state = torch.load(out / STATE, weights_only=True)
-    model = PPO.load(out / MODEL, env=make_env(seed), device="cpu")
-    if model.num_timesteps != state["frames"]:
-        raise ValueError(f"{out}: {MODEL} holds {model.num_timesteps} frames, {STATE} "
-                         f"{state['frames']}: the run stopped while saving; no exact resume")
+    state = load_state(out)
+    model = new_model(seed, out)
+    load_policy(model, state, out)
     model.get_env().reset()  # the wrappers' order checks; the snapshot then replaces it all
-    parking_env(model).restore(state["env"])
+    try:
+        parking_env(model).restore(state["env"])
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{str(out / STATE)!r}: {err}") from None
     # SB3 resets the env at learn() unless it holds the last observation: give it the saved.
     model._last_obs = state["last_obs"].numpy()
     model._last_episode_starts = state["episode_starts"].numpy()
@@ -130,12 +171,10 @@ def resume(out: Path, seed: int) -> PPO:
 
 def train(out: Path, total: int, frames_per_level: int, every: int, seed: int,
           resume_run: bool) -> PPO:
-    """Train (or go on training) the paper's agent; checkpoints and TensorBoard in ``out``."""
-    if resume_run:
-        model = resume(out, seed)
-    else:
-        model = PPO("MlpPolicy", make_env(seed), seed=seed, device="cpu",
-                    tensorboard_log=str(out))
+    """Train (or go on training) the paper's agent; checkpoints and TensorBoard in ``out``
+    (which the command line locks for the run: ``torchpark.files.locked``)."""
+    out.mkdir(parents=True, exist_ok=True)
+    model = resume(out, seed) if resume_run else new_model(seed, out)
     remaining = total - model.num_timesteps
     model.learn(remaining, callback=PaperSchedule(out, frames_per_level, every),
                 reset_num_timesteps=not resume_run, tb_log_name="sb3", progress_bar=True)
@@ -146,12 +185,13 @@ def train(out: Path, total: int, frames_per_level: int, every: int, seed: int,
 def evaluate(out: Path, episodes: int, seed: int) -> list[dict]:
     """The model's table: the deterministic policy, ``episodes`` lots per level, the paper's
     env, success at C < 4e-4, 4e-3 and 4e-2."""
-    model = PPO.load(out / MODEL, device="cpu")
-    frames = torch.load(out / STATE, weights_only=True)["frames"]
+    state = load_state(out)
+    model = new_model(0, compile_step=False)
+    load_policy(model, state, out)
     made_of = {"agent": "policy alone", "brake": "off", "docking_law": "off",
                "action_repeat": 1, "actions": "the mode (deterministic)",
-               "policy": f"PPO (Stable-Baselines3 defaults, the paper's recipe), {frames:,} "
-                         f"frames"}
+               "policy": f"PPO (Stable-Baselines3 defaults, the paper's recipe), "
+                         f"{model.num_timesteps:,} frames"}
     rows = []
     for level in PAPER_LEVELS:
         env = ParkingEnv(episodes, seed=seed)
@@ -190,25 +230,35 @@ def main(argv: list[str] | None = None) -> None:
     for name in ("total_frames", "frames_per_level", "checkpoint_every", "episodes"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1")
-    if not 0 <= args.seed < 2**63:
-        parser.error(f"--seed must be in [0, 2**63), got {args.seed}")
-    files = [args.out / MODEL, args.out / STATE]
-    held = [f for f in files if f.exists()]
-    if args.evaluate or args.resume:
-        if len(held) < len(files):
-            parser.error(f"{args.out} holds no whole run: it needs {MODEL} and {STATE}")
-    elif held and not args.overwrite:
-        parser.error(f"{args.out} holds a run: --resume it or --overwrite it")
-    if args.evaluate:
-        tables = [args.out / "evaluation.md", args.out / "evaluation.csv"]
-        if any(t.exists() for t in tables) and not args.overwrite:
-            parser.error(f"{args.out} holds an evaluation: --overwrite to replace it")
-        print(write_tables(evaluate(args.out, args.episodes, seed=1), args.out))
-        return
-    torch.set_num_threads(1)  # one core: the machine has two
-    args.out.mkdir(parents=True, exist_ok=True)
-    train(args.out, args.total_frames, args.frames_per_level, args.checkpoint_every,
-          args.seed, args.resume)
+    if not 0 <= args.seed < SEED_LIMIT:
+        parser.error(f"--seed must be an int in [0, 2**32), got {args.seed}")
+    if args.episodes > MAX_EPISODES:
+        parser.error(f"--episodes must be <= {MAX_EPISODES}, got {args.episodes}")
+    try:
+        run(args)
+    except (ValueError, OSError) as err:
+        parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
+
+
+def run(args: argparse.Namespace) -> None:
+    """What ``main`` was asked, with the output directory locked."""
+    with locked(args.out, "--out"):
+        held = [f for f in (args.out / STATE, args.out / MODEL) if f.exists()]
+        if (args.evaluate or args.resume) and not (args.out / STATE).exists():
+            raise ValueError(f"{args.out} holds no whole run: it needs {STATE}")
+        if not (args.evaluate or args.resume) and held and not args.overwrite:
+            raise ValueError(f"{args.out} holds a run: --resume it or --overwrite it")
+        if args.evaluate:
+            tables = [args.out / "evaluation.md", args.out / "evaluation.csv"]
+            if any(t.exists() for t in tables) and not args.overwrite:
+                raise ValueError(f"{args.out} holds an evaluation: --overwrite to replace it")
+            rows = evaluate(args.out, args.episodes, seed=1)
+            print(to_markdown(rows), flush=True)  # the table first: whatever the disk says
+            write_tables(rows, args.out)
+            return
+        torch.set_num_threads(1)  # one core: the machine has two
+        train(args.out, args.total_frames, args.frames_per_level, args.checkpoint_every,
+              args.seed, args.resume)
 
 
 if __name__ == "__main__":

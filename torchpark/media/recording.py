@@ -14,6 +14,7 @@ from torchrl.envs import EnvBase
 from torchrl.envs.utils import step_mdp
 
 from torchpark.env import ParkingEnv
+from torchpark.files import write_file
 
 Policy = TensorDictModuleBase | Callable[[torch.Tensor], torch.Tensor]
 VIDEO_SUFFIXES = (".gif", ".mp4")
@@ -61,7 +62,8 @@ def rollout_frames(env: EnvBase, policy: Policy, index: int = 0,
 
 
 def write_video(frames: list[np.ndarray], path: str | Path, fps: float = 10.0) -> Path:
-    """Write frames (H, W, 3) uint8 to ``path`` (.gif or .mp4) at ``fps``; returns the path.
+    """Write frames (H, W, 3) uint8 to ``path`` (.gif or .mp4) at ``fps``, whole or not at
+    all (``torchpark.files``); returns the path.
 
     MP4 frames are padded (white) to multiples of 16 pixels, as H.264 players expect.
     """
@@ -75,12 +77,12 @@ def write_video(frames: list[np.ndarray], path: str | Path, fps: float = 10.0) -
     stack = np.stack(frames)
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix == ".gif":
-        iio.imwrite(path, stack, duration=1000.0 / fps, loop=0)
-    else:
-        h, w = stack.shape[1:3]
-        pad = ((0, 0), (0, -h % 16), (0, -w % 16), (0, 0))
-        iio.imwrite(path, np.pad(stack, pad, constant_values=255), fps=fps)
-    return path
+        return write_file(path, lambda tmp: iio.imwrite(tmp, stack, duration=1000.0 / fps,
+                                                        loop=0))
+    h, w = stack.shape[1:3]
+    pad = ((0, 0), (0, -h % 16), (0, -w % 16), (0, 0))
+    padded = np.pad(stack, pad, constant_values=255)
+    return write_file(path, lambda tmp: iio.imwrite(tmp, padded, fps=fps))
 
 
 def record_video(env: EnvBase, policy: Policy, path: str | Path, index: int = 0,
