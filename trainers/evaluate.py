@@ -291,6 +291,7 @@ def main(argv: list[str] | None = None) -> None:
     out = Path(args.out) if args.out else Path(args.checkpoint).parent
     videos = None if args.videos == "none" else args.videos
     try:
+        agent = load_agent(args.checkpoint, args.device, args.aids, args.sample)
         with locked(out, "--out"):
             outputs = [out / "evaluation.md", out / "evaluation.csv"]
             if videos is not None:
@@ -301,7 +302,6 @@ def main(argv: list[str] | None = None) -> None:
                 raise ValueError(f"{existing[0]} exists ({len(existing)} of the outputs do): "
                                  f"pass --out another directory, or --overwrite to replace "
                                  f"them")
-            agent = load_agent(args.checkpoint, args.device, args.aids, args.sample)
             rows = evaluate_agent(agent, args.episodes, seed=args.seed, sample=args.sample)
             print(to_markdown(rows), flush=True)  # the table first: whatever the disk says
             write_tables(rows, out)
