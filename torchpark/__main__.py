@@ -11,7 +11,7 @@ import time
 import torch
 
 from torchpark import ParkingEnv
-from torchpark.config import SEED_LIMIT
+from torchpark.config import check_seed
 
 MAX_STEPS = 10**7  # batched steps: far beyond a demo, short of an accidental forever
 
@@ -29,11 +29,9 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if not 1 <= args.steps <= MAX_STEPS:
         parser.error(f"--steps must be in [1, {MAX_STEPS}], got {args.steps}")
-    if not 0 <= args.seed < SEED_LIMIT:
-        parser.error(f"--seed must be an int in [0, 2**32), got {args.seed}")
 
-    torch.manual_seed(args.seed)  # the random actions (the action spec's rand) follow the seed
     try:
+        torch.manual_seed(check_seed(args.seed, "--seed"))  # the random actions follow it
         env = ParkingEnv(args.num_envs, device=args.device, seed=args.seed,
                          compile_step=not args.eager)
         env.occupancy = args.occupancy

@@ -289,7 +289,7 @@ class ParkingEnv(EnvBase):
         if seed is None:
             seed = int(torch.randint(0, SEED_LIMIT, (), dtype=torch.int64))
         seed = check_seed(seed, "seed")
-        self._generator.manual_seed(int(seed))
+        self._generator.manual_seed(seed)
         self._ahead_used = self.num_envs  # later lots come from the new seed
 
     @property

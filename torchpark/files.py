@@ -14,6 +14,7 @@ refused by name, and the lock goes with the process however it ends.
 from __future__ import annotations
 
 import contextlib
+import csv
 import io
 import os
 import secrets
@@ -93,6 +94,17 @@ def write_file(path: str | Path, write: Callable[[Path], object]) -> Path:
 def write_text(path: str | Path, text: str) -> Path:
     """``text`` (UTF-8) to ``path``, whole or not at all."""
     return write_file(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+
+
+def write_csv(path: str | Path, rows: list[dict], fieldnames: list[str] | tuple[str, ...]
+              ) -> Path:
+    """``rows`` under a header of ``fieldnames`` (csv.DictWriter) to ``path``, whole or not
+    at all."""
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=fieldnames)
+    writer.writeheader()
+    writer.writerows(rows)
+    return write_text(path, text.getvalue())
 
 
 def save_torch(obj: object, path: str | Path) -> Path:

@@ -21,7 +21,8 @@ def load_checkpoint(path: str | Path, device: torch.device | str = "cpu",
 
     Raises ValueError naming the path when the file is missing, is not a torch file, holds
     anything but tensors and plain data (pickled code is never run), or lacks one of
-    ``required``.
+    ``required``; with ``config`` among them, when it is no dict or holds an OmegaConf
+    interpolation.
     """
     path = Path(path)
     if not path.is_file():
@@ -30,16 +31,20 @@ def load_checkpoint(path: str | Path, device: torch.device | str = "cpu",
         checkpoint = torch.load(path, map_location=device, weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, OSError,
             ValueError, AttributeError, TypeError) as err:
-        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise ValueError(f"checkpoint {str(path)!r} is not a torchpark checkpoint (a torch "
-                         f"file of tensors and plain data): {first}") from None
+                         f"file of tensors and plain data): {_first_line(err)}") from None
     if not isinstance(checkpoint, dict):
         raise ValueError(f"checkpoint {str(path)!r} is not a torchpark checkpoint: it holds a "
                          f"{type(checkpoint).__name__}, not a dict")
     missing = sorted(required - set(checkpoint))
-    if missing or not isinstance(checkpoint["config"], dict):
-        raise ValueError(f"checkpoint {str(path)!r} is not a torchpark checkpoint: "
-                         + (f"it lacks {missing}" if missing else "its config is not a dict"))
+    if missing:
+        raise ValueError(f"checkpoint {str(path)!r} is not a torchpark checkpoint: it lacks "
+                         f"{missing}")
+    if "config" not in required:
+        return checkpoint
+    if not isinstance(checkpoint["config"], dict):
+        raise ValueError(f"checkpoint {str(path)!r} is not a torchpark checkpoint: its config "
+                         f"is not a dict")
     interpolated = _interpolation(checkpoint["config"])
     if interpolated is not None:
         raise ValueError(f"checkpoint {str(path)!r} has an OmegaConf interpolation ('${{...}}') "
@@ -72,6 +77,10 @@ def load_weights(module: torch.nn.Module | torch.optim.Optimizer, state: object,
     try:
         module.load_state_dict(state)
     except (RuntimeError, ValueError, KeyError, TypeError, AttributeError, IndexError) as err:
-        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise ValueError(f"checkpoint {str(path)!r}: its {entry} does not fit the network its "
-                         f"config builds: {first}") from None
+                         f"config builds: {_first_line(err)}") from None
+
+
+def _first_line(err: BaseException) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__

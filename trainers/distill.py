@@ -68,9 +68,7 @@ goal, within 1 m and 0.6 rad of the slot axis, empty lot) and from uniform start
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
-import io
 import time
 import typing
 from dataclasses import dataclass
@@ -98,7 +96,7 @@ from torchpark.aids.starts import near_starts_free
 from torchpark.aids.step import AidedState, AidState, aided_control
 from torchpark.config import RewardConfig, check_types, positive, require
 from torchpark.curriculum import PAPER_LEVELS
-from torchpark.files import locked, save_torch, write_text
+from torchpark.files import locked, save_torch, write_csv
 from torchpark.runner import run_episodes
 from torchpark.sim.geometry import wrap_angle
 from torchpark.sim.observation import NAV_DIM
@@ -581,11 +579,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
         rows.append(row)
         print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                        for k, v in row.items()), flush=True)
-        table = io.StringIO()
-        writer = csv.DictWriter(table, fieldnames=list(row))
-        writer.writeheader()
-        writer.writerows(rows)
-        write_text(out / "dagger.csv", table.getvalue())
+        write_csv(out / "dagger.csv", rows, list(row))
         checkpoint = {"config": dataclasses.asdict(scfg), "frames": frames,
                       "actor": actor.state_dict(), "obs_norm": norm.state_dict(),
                       "trained_by": f"distilled{made_of} from {source}: "

@@ -24,8 +24,6 @@ approach of a hybrid: ``--aids emergency_brake=true steer_clear=5 docking=true``
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 from pathlib import Path
 from typing import NamedTuple
 
@@ -35,9 +33,9 @@ from omegaconf.errors import OmegaConfBaseException
 from torch.utils._pytree import tree_map_only
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchpark.config import SEED_LIMIT, is_integer
+from torchpark.config import SEED_LIMIT, check_seed, is_integer
 from torchpark.curriculum import PAPER_LEVELS
-from torchpark.files import locked, write_text
+from torchpark.files import locked, write_csv, write_text
 from torchpark.media.recording import record_video
 from torchpark.runner import Episodes, run_episodes
 from trainers.checkpoint import load_checkpoint, load_weights
@@ -252,11 +250,7 @@ def write_tables(rows: list[dict], out: Path) -> str:
     """Write ``evaluation.md`` and ``evaluation.csv`` (COLUMNS) into ``out``, each whole or
     not at all; returns the Markdown."""
     table = to_markdown(rows)
-    text = io.StringIO()
-    writer = csv.DictWriter(text, fieldnames=COLUMNS)
-    writer.writeheader()
-    writer.writerows(rows)
-    write_text(out / "evaluation.csv", text.getvalue())
+    write_csv(out / "evaluation.csv", rows, COLUMNS)
     write_text(out / "evaluation.md", table + "\n")
     return table
 
@@ -284,13 +278,12 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--episodes must be in [1, {MAX_EPISODES}], got {args.episodes}")
     if args.sample is not None and args.sample < 0:
         parser.error(f"--sample must be a torch seed >= 0, got {args.sample}")
-    if not 0 <= args.seed < SEED_LIMIT:
-        parser.error(f"--seed must be an int in [0, 2**32), got {args.seed}")
     if args.sample is not None and args.sample >= SEED_LIMIT:
         parser.error(f"--sample must be a torch seed < 2**32, got {args.sample}")
     out = Path(args.out) if args.out else Path(args.checkpoint).parent
     videos = None if args.videos == "none" else args.videos
     try:
+        check_seed(args.seed, "--seed")
         agent = load_agent(args.checkpoint, args.device, args.aids, args.sample)
         with locked(out, "--out"):
             outputs = [out / "evaluation.md", out / "evaluation.csv"]

@@ -372,9 +372,8 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
     if cfg.env.compile_step and world.main:
         print("compiling the env's step and reset for the first batch (tens of seconds) ...",
               flush=True)
-    bar = tqdm(total=cfg.collector.total_frames, initial=frames, unit="frame", smoothing=0.1,
-               disable=not world.main)
-    try:  # the bar is closed before any error is printed
+    with tqdm(total=cfg.collector.total_frames, initial=frames, unit="frame", smoothing=0.1,
+              disable=not world.main) as bar:  # closed before any error is printed
         collect_start = time.perf_counter()
         for batch in collector:
             collect_time = time.perf_counter() - collect_start
@@ -417,8 +416,6 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
                 save(f"checkpoint_{frames}.pt")
                 next_checkpoint += cfg.logger.checkpoint_every
             collect_start = time.perf_counter()
-    finally:
-        bar.close()
     final = save("checkpoint_final.pt")
     collection.shutdown()
     del loss_fn  # DDP's reducer goes before its process group

@@ -37,11 +37,11 @@ from torchrl.envs import TransformedEnv
 
 import torchpark  # noqa: F401  (registers torchpark/Parking-v0)
 from torchpark import ParkingEnv
-from torchpark.config import SEED_LIMIT
+from torchpark.config import check_seed
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.files import locked, save_torch, write_file
 from torchpark.runner import run_episodes
-from trainers.checkpoint import load_weights
+from trainers.checkpoint import load_checkpoint, load_weights
 from trainers.evaluate import MAX_EPISODES, PAPER_SUCCESS, level_row, to_markdown, write_tables
 
 MODEL, STATE = "model.zip", "state.pt"
@@ -122,20 +122,9 @@ STATE_KEYS = frozenset({"frames", "updates", "policy", "optimizer", "env", "last
 
 
 def load_state(out: Path) -> dict:
-    """``out/state.pt``, tensors and plain data only; ValueError naming the file when it is
-    not a whole checkpoint of this script."""
-    path = out / STATE
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # any unreadable file: torch raises many kinds
-        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        raise ValueError(f"{str(path)!r} is not a checkpoint of trainers.sb3_paper: "
-                         f"{first}") from None
-    missing = sorted(STATE_KEYS - set(state)) if isinstance(state, dict) else ["all"]
-    if missing:
-        raise ValueError(f"{str(path)!r} is not a checkpoint of trainers.sb3_paper: it lacks "
-                         f"{missing}")
-    return state
+    """``out/state.pt`` (``trainers.checkpoint.load_checkpoint``: tensors and plain data
+    only); ValueError naming the file when it is not a whole checkpoint of this script."""
+    return load_checkpoint(out / STATE, "cpu", STATE_KEYS)
 
 
 def new_model(seed: int, out: Path | None = None, compile_step: bool = True) -> PPO:
@@ -230,11 +219,10 @@ def main(argv: list[str] | None = None) -> None:
     for name in ("total_frames", "frames_per_level", "checkpoint_every", "episodes"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1")
-    if not 0 <= args.seed < SEED_LIMIT:
-        parser.error(f"--seed must be an int in [0, 2**32), got {args.seed}")
     if args.episodes > MAX_EPISODES:
         parser.error(f"--episodes must be <= {MAX_EPISODES}, got {args.episodes}")
     try:
+        check_seed(args.seed, "--seed")
         run(args)
     except (ValueError, OSError) as err:
         parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
