@@ -1,6 +1,6 @@
 """Does the batched speed survive the Gymnasium interface? And how fast are the pictures?
 
-    python benchmarks/gymnasium_speed.py [--sizes 1 1024] [--seconds 3] [--compiled]
+    python -m benchmarks.gymnasium_speed [--sizes 1 1024] [--seconds 3] [--compiled]
 
 For each N: env-steps/s of the torchrl ``ParkingEnv.step`` (with torchrl's own bookkeeping,
 what a user loop calls) and of the Gymnasium env on top of it (``gymnasium.make`` for N = 1,

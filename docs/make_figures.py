@@ -33,7 +33,7 @@ from torchpark.aids.docking import error_from_goal
 from torchpark.media.recording import record_video
 from torchpark.media.rendering import picture_grid
 from torchpark.sim.reward import parking_cost
-from trainers.evaluate import load
+from trainers.checkpoint import load_trained
 from trainers.utils import make_eval_env, make_policy
 
 DOCS = Path(__file__).resolve().parent
@@ -50,7 +50,7 @@ def lots_picture(path: Path) -> None:
 
 
 def rollout_animation(checkpoint: str, path: Path, occupancy: float = 0.4) -> None:
-    cfg, saved = load(checkpoint)
+    cfg, saved = load_trained(checkpoint)
     actor = make_policy(cfg, saved["actor"])
     env = make_eval_env(cfg, saved["obs_norm"], occupancy, num_envs=1, seed=1)
     with set_exploration_type(ExplorationType.DETERMINISTIC):

@@ -11,7 +11,7 @@ from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
 from torchpark import ParkingEnv
-from torchpark.aids.actions import GearActionMap, PowerActionMap, gear_inverse, gear_select
+from torchpark.transforms.actions import GearActionMap, PowerActionMap, gear_inverse, gear_select
 
 
 def make(exponents=(3.0, 1.0)) -> TransformedEnv:

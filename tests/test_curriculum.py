@@ -1,5 +1,5 @@
-"""OccupancyCurriculum: exact level boundaries, resume from a state_dict, isolation.
-SuccessCurriculum: the threshold falls by its factor after each successful window."""
+"""OccupancyCurriculum: exact level boundaries, resume from a state_dict, isolation; the
+env's success threshold reaches a compiled step."""
 
 from __future__ import annotations
 
@@ -10,10 +10,8 @@ from torchrl.envs import TransformedEnv
 
 from torchpark import (
     AidsConfig,
-    NearGoalStarts,
     OccupancyCurriculum,
     ParkingEnv,
-    SuccessCurriculum,
 )
 from torchpark.curriculum import PAPER_LEVELS
 
@@ -129,95 +127,6 @@ def test_held_actions_count_as_several_frames():
     assert env.transform.phase == 3 and env.base_env.occupancy == PAPER_LEVELS[2]
 
 
-def make_success(num_envs: int, start: float, **kwargs) -> TransformedEnv:
-    return TransformedEnv(ParkingEnv(num_envs, seed=0), SuccessCurriculum(start, **kwargs))
-
-
-def test_success_threshold_tightens_each_successful_window_down_to_final():
-    # C < 1e4 holds everywhere in the lot: every step succeeds, every window earns a cut.
-    env = make_success(4, 1e4, final=100.0, factor=0.1, target=0.5, window=8)
-    td = env.reset()
-    assert env.base_env.success_threshold == pytest.approx(1e4)
-    seen = []
-    for _ in range(8):
-        td = env.rand_step(td)["next"]
-        assert td["success"].all()
-        seen.append(env.base_env.success_threshold)
-    assert seen == pytest.approx([1e4, 1e3, 1e3, 100.0, 100.0, 100.0, 100.0, 100.0])
-    assert env.transform.success_threshold == pytest.approx(100.0)
-
-
-def test_success_threshold_stays_while_windows_fail():
-    env = make_success(4, 1e-3, final=1e-4, factor=0.5, target=0.5, window=4)
-    env.rollout(10, break_when_any_done=False)
-    assert env.base_env.success_threshold == pytest.approx(1e-3)
-    assert env.transform.frames_seen == 40
-
-
-def test_success_rate_is_the_windows_own():
-    # First window: C is never below 1e-9, no success. Then every step succeeds (the counts
-    # restart with the window) and the next window earns a cut even with a target of 1.
-    env = make_success(2, 1e-9, final=1e-12, factor=0.5, target=1.0, window=4)
-    td = env.reset()
-    for _ in range(2):
-        td = env.rand_step(td)["next"]
-    assert env.base_env.success_threshold == pytest.approx(1e-9)
-    env.transform.threshold.fill_(1e4)
-    env.base_env.success_threshold = 1e4
-    for _ in range(2):
-        td = env.rand_step(td)["next"]
-    assert env.base_env.success_threshold == pytest.approx(5e3)
-
-
-def test_success_rate_is_reduced_over_the_replicas():
-    # This copy sees no success (C never below 1e-9); the reduce adds another copy's window
-    # of 8 episodes, all successes: the decision is taken on both and tightens.
-    calls = []
-
-    def reduce(counts):  # stands in for torch.distributed.all_reduce
-        calls.append(counts.clone())
-        counts.add_(torch.tensor([8.0, 8.0]))
-
-    env = make_success(2, 1e-9, final=1e-12, factor=0.5, target=0.5, window=8, replicas=2,
-                       reduce=reduce)
-    td = env.reset()
-    for _ in range(2):
-        td = env.rand_step(td)["next"]
-    assert len(calls) == 1 and calls[0][1] == 0  # once per window, this copy's counts
-    assert env.base_env.success_threshold == pytest.approx(5e-10)
-    alone = make_success(2, 1e-9, final=1e-12, factor=0.5, target=0.5, window=8, replicas=2)
-    alone.rollout(2, break_when_any_done=False)
-    assert alone.base_env.success_threshold == pytest.approx(1e-9)
-
-
-def test_success_curriculum_state_dict_round_trip():
-    env = make_success(4, 1e4, final=1.0, factor=0.5, window=8)
-    td = env.reset()
-    for _ in range(5):
-        td = env.rand_step(td)["next"]
-    resumed = make_success(4, 1e4, final=1.0, factor=0.5, window=8)
-    resumed.load_state_dict(env.state_dict())
-    assert resumed.base_env.success_threshold == pytest.approx(2.5e3)
-    assert resumed.transform.frames_seen == 20
-    assert float(resumed.transform.ended) == float(env.transform.ended) == 4.0
-
-
-def test_success_curriculum_pushes_only_a_new_threshold():
-    """Resets do not re-push an unchanged threshold: with near-goal starts a new threshold
-    discards the env's episodes drawn ahead, so a partial reset would otherwise draw N new
-    ones each time (the generator would move)."""
-    env = TransformedEnv(ParkingEnv(8, seed=0, aids=AidsConfig(near_goal_starts=NearGoalStarts())),
-                         SuccessCurriculum(1e-3, window=10**6))
-    td = env.reset()
-    mask = torch.zeros(8, 1, dtype=torch.bool)
-    mask[2] = True
-    env.reset(td.clone().set("_reset", mask))  # draws 8 episodes ahead, hands out one
-    generator = env.base_env.snapshot()["generator"]
-    env.reset(td.clone().set("_reset", mask))  # the next one, drawn ahead
-    assert torch.equal(env.base_env.snapshot()["generator"], generator)
-    assert env.base_env.success_threshold == pytest.approx(1e-3)
-
-
 def test_success_threshold_reaches_a_compiled_step():
     """The compiled step reads the threshold tensor at run time: no stale constant."""
     env = ParkingEnv(4, seed=0, compile_step=True)
@@ -234,19 +143,3 @@ def test_success_threshold_reaches_a_compiled_step():
 def test_bad_success_threshold_raises(value):
     with pytest.raises(ValueError, match="success_threshold must be a finite float > 0"):
         ParkingEnv(1).success_threshold = value
-
-
-@pytest.mark.parametrize("kwargs, match", [
-    ({"start": 0.0}, r"start must be > 0"),
-    ({"start": 1e-4}, r"final must be in \(0, start\]"),
-    ({"factor": 1.0}, r"factor must be in \(0, 1\)"),
-    ({"target": 0.0}, r"target must be in \(0, 1\]"),
-    ({"window": 0}, "window must be an int >= 1"),
-    ({"start": True}, "start must be a finite number"),
-    ({"factor": float("nan")}, "factor must be a finite number"),
-    ({"target": "0.5"}, "target must be a finite number"),
-    ({"reduce": 3}, "reduce must be None or a callable"),
-])
-def test_success_curriculum_bad_arguments_raise(kwargs, match):
-    with pytest.raises(ValueError, match=match):
-        SuccessCurriculum(**{"start": 0.1, **kwargs})

@@ -176,8 +176,8 @@ def test_law_meets_the_papers_success_test_from_the_funnel(box, brake, steer_cle
     slot axis and from within 2.5 m and 1.6 rad (past perpendicular), the law reaches
     C < 4e-4 (1 mm, 0.1 deg, 4 mm/s) in nearly every episode; at 90 % occupancy from
     within 4 m of the axis at any heading (the default funnel's width), on the brake that
-    steers clear, in most (500 envs: 1.00, 1.00 and 0.86, see
-    benchmarks/docking_reference.py). It never collides."""
+    steers clear, in most (500 envs: 1.00, 1.00 and 0.86, research/experiments.md). It
+    never collides."""
     lateral, heading = box
     # In a dense lot 8 tries (the default) often find no free start in the funnel; 32 do.
     near = NearGoalStarts(probability=1.0, lateral=lateral, heading=heading,

@@ -14,7 +14,7 @@ from torchrl.envs.utils import check_env_specs
 
 from tests.reference import _corners, _ray_hit
 from torchpark import ClearanceFeatures, GoalFrameFeatures, ParkingConfig, ParkingEnv
-from torchpark.aids.features import box_edge_distance, goal_in_vehicle_frame
+from torchpark.transforms.features import box_edge_distance, goal_in_vehicle_frame
 
 
 def observation(dx, dy, psi, alpha) -> torch.Tensor:

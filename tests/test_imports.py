@@ -1,5 +1,7 @@
-"""The house rules, by import: the paper's simulator (torchpark.sim) imports nothing from the
-aids, the pictures or the trainers, and ``import torchpark`` needs none of the extras."""
+"""The house rules, by import: each room of torchpark imports nothing above it (the paper's
+simulator, ``sim``, nothing but itself and the task's config; the aids composed into the step
+nothing from the policy-side transforms, the experts, the pictures, the env or the
+trainers; ...), and ``import torchpark`` needs none of the extras."""
 
 from __future__ import annotations
 
@@ -13,8 +15,21 @@ import pytest
 import torchpark
 
 PACKAGE = Path(torchpark.__file__).parent
-SIM_MAY_NOT_IMPORT = ("torchpark.aids", "torchpark.media", "torchpark.env", "torchpark.gym_env",
-                      "torchpark.curriculum", "torchpark.runner", "trainers")
+# What is above the simulator: everything but itself and the task's config (and files).
+ABOVE_SIM = ("torchpark.aids", "torchpark.transforms", "torchpark.experts", "torchpark.media",
+             "torchpark.env", "torchpark.gym_env", "torchpark.curriculum", "torchpark.runner",
+             "trainers")
+ABOVE_AIDS = tuple(name for name in ABOVE_SIM if name != "torchpark.aids")
+# room -> the modules its files may not import
+RULES = {
+    "sim": ABOVE_SIM,
+    "aids": ABOVE_AIDS,
+    "transforms": ("torchpark.aids", "torchpark.experts", "torchpark.media", "torchpark.env",
+                   "torchpark.gym_env", "torchpark.runner", "trainers"),
+    "experts": ("torchpark.transforms", "torchpark.media", "torchpark.gym_env",
+                "torchpark.runner", "trainers"),
+    "media": ("torchpark.aids", "torchpark.transforms", "torchpark.experts", "trainers"),
+}
 
 
 def imported_modules(path: Path, root: Path = PACKAGE.parent) -> list[str]:
@@ -34,17 +49,25 @@ def imported_modules(path: Path, root: Path = PACKAGE.parent) -> list[str]:
     return names
 
 
-SIM_FILES = [*sorted((PACKAGE / "sim").glob("*.py")), PACKAGE / "config.py"]
+ROOMS = [(room, path) for room in RULES for path in sorted((PACKAGE / room).glob("*.py"))]
+ROOMS.append(("sim", PACKAGE / "config.py"))  # the task's config is the simulator's
 
 
-@pytest.mark.parametrize("path", SIM_FILES, ids=lambda p: p.name)
-def test_the_simulator_imports_nothing_above_it(path):
-    bad = offending(path)
-    assert not bad, f"{path.name} imports {bad}"
+@pytest.mark.parametrize("room, path", ROOMS, ids=lambda x: x if isinstance(x, str) else x.name)
+def test_each_room_imports_nothing_above_it(room, path):
+    bad = offending(path, RULES[room])
+    assert not bad, f"{room}/{path.name} imports {bad}"
 
 
-def offending(path: Path, root: Path = PACKAGE.parent) -> list[str]:
-    return [name for name in imported_modules(path, root) if name.startswith(SIM_MAY_NOT_IMPORT)]
+def test_every_room_holds_modules():
+    assert {room for room, _ in ROOMS} == set(RULES)
+    assert all(any(r == room for r, _ in ROOMS[:-1]) for room in RULES)
+
+
+def offending(path: Path, forbidden: tuple[str, ...], root: Path = PACKAGE.parent
+              ) -> list[str]:
+    return [name for name in imported_modules(path, root)
+            if any(name == f or name.startswith(f + ".") for f in forbidden)]
 
 
 def test_the_rule_catches_absolute_and_relative_offenders(tmp_path):
@@ -53,8 +76,9 @@ def test_the_rule_catches_absolute_and_relative_offenders(tmp_path):
     fake.write_text("import torch\nfrom torchpark.sim.world import World\n"
                     "from torchpark.aids.docking import take_over\n"
                     "from ..media import rendering\nimport trainers.utils\n")
-    assert offending(fake, tmp_path) == ["torchpark.aids.docking", "torchpark.media",
-                                         "trainers.utils"]
+    assert offending(fake, RULES["sim"], tmp_path) == ["torchpark.aids.docking",
+                                                       "torchpark.media", "trainers.utils"]
+    assert offending(fake, RULES["aids"], tmp_path) == ["torchpark.media", "trainers.utils"]
 
 
 def test_importing_torchpark_loads_no_picture_or_training_library():

@@ -1,4 +1,4 @@
-"""The approach planner (torchpark.aids.planner): exact arcs, the grid's indexing, the free
+"""The approach planner (torchpark.experts.planner): exact arcs, the grid's indexing, the free
 cells against a shapely oracle, paths down the cost-to-go that reach the target clear of
 every slot but the goal's (or drive off the one the car stands on), and its settings refused
 by name."""
@@ -11,8 +11,9 @@ import pytest
 import torch
 
 from tests.conftest import polygon
-from torchpark import DockingConfig, PlannerConfig, VehicleConfig
-from torchpark.aids.planner import (
+from torchpark import DockingConfig, VehicleConfig
+from torchpark.experts import PlannerConfig
+from torchpark.experts.planner import (
     arcs,
     build_planner,
     cell_index,

@@ -170,26 +170,14 @@ def test_near_goal_starts_follow_a_new_success_threshold():
     assert not (td["cost"][1:, 0] < 0.05).any()
 
 
-def test_a_snapshot_without_episodes_drawn_ahead_restores_as_the_older_version_ran():
-    """Snapshots written before episodes were drawn ahead (the paper's run on one env) hold
-    none: restored, the env draws anew at its next reset, as the older version did."""
+def test_a_snapshot_without_its_episodes_drawn_ahead_is_refused():
+    """Every snapshot holds the episodes drawn ahead and how many are handed out: one
+    without them (or handing out more than N) is refused by name, not continued otherwise."""
     env = ParkingEnv(1, seed=5)
-    td = env.reset()
-    actions = random_actions(1, 60, 3)
-    for a in actions[:10]:
-        td = env.step_and_maybe_reset(td.set("action", a))[1]
+    env.reset()
     saved = env.snapshot()
     older = {k: v for k, v in saved.items() if not k.startswith("ahead")}
-
-    def future(snapshot):
-        env.restore(snapshot)
-        out, state = [], td.clone()
-        for a in actions[10:]:  # episodes end and reset on the way
-            step, state = env.step_and_maybe_reset(state.set("action", a))
-            out.append(step["next"]["observation"])
-        return torch.stack(out)
-
-    assert saved["ahead_used"] == 1  # one env: every reset drew its one episode
-    assert torch.equal(future(older), future(saved))
+    with pytest.raises(ValueError, match=r"snapshot must hold exactly .*'ahead_used'"):
+        env.restore(older)
     with pytest.raises(ValueError, match=r"snapshot\['ahead_used'\] must be an int"):
         env.restore({**saved, "ahead_used": 2})

@@ -1,24 +1,24 @@
 """torchpark: batched autonomous-parking simulation for reinforcement learning in TorchRL.
 
 ``ParkingEnv(num_envs)`` is the paper's task; ``torchpark.sim`` its simulator as pure tensor
-functions; ``torchpark.aids`` the agent-side aids (``ParkingEnv(..., aids=AidsConfig(...))``);
-``torchpark.media`` pictures and videos.
+functions; ``torchpark.aids`` the agent-side layers composed into the step
+(``ParkingEnv(..., aids=AidsConfig(...))``); ``torchpark.transforms`` the policy-side TorchRL
+transforms; ``torchpark.experts`` the hand-written expert; ``torchpark.media`` pictures and
+videos.
 """
 
-from torchpark.aids.actions import GearActionMap, PowerActionMap
 from torchpark.aids.config import (
     AidsConfig,
     BrakeConfig,
     DockingConfig,
     NearGoalStarts,
-    PlannerConfig,
 )
-from torchpark.aids.features import ClearanceFeatures, GoalFrameFeatures
-from torchpark.aids.success_curriculum import SuccessCurriculum
 from torchpark.config import LidarConfig, LotConfig, ParkingConfig, RewardConfig, VehicleConfig
 from torchpark.curriculum import OccupancyCurriculum
 from torchpark.env import ParkingEnv
 from torchpark.gym_env import ENV_ID, ParkingGymEnv, ParkingVectorEnv, register
+from torchpark.transforms.actions import GearActionMap, PowerActionMap
+from torchpark.transforms.features import ClearanceFeatures, GoalFrameFeatures
 
 register()  # gymnasium.make("torchpark/Parking-v0")
 
@@ -38,9 +38,7 @@ __all__ = [
     "ParkingEnv",
     "ParkingGymEnv",
     "ParkingVectorEnv",
-    "PlannerConfig",
     "PowerActionMap",
     "RewardConfig",
-    "SuccessCurriculum",
     "VehicleConfig",
 ]

@@ -1,8 +1,9 @@
 """``ParkingEnv``: N parking lots as one batch-locked TorchRL environment.
 
-The class is plumbing: specs, seeding, action checks, the reset's mask, and dispatch to the
-paper's step and reset (:mod:`torchpark.sim.step`), or to the aided ones
-(:mod:`torchpark.aids.step`) when it is given an :class:`AidsConfig`. Pictures come from
+The class is plumbing: specs, seeding, action checks, the reset's mask, and the agent's step
+and reset (:mod:`torchpark.aids.step`: the paper's, :mod:`torchpark.sim.step`, with the aids
+it is given around it). It holds one state whatever the aids, an ``AidedState``: the paper's
+state and the aids' beside it, inert when they are off. Pictures come from
 :mod:`torchpark.media`, imported on first use.
 
 A reset costs what it resets: the env draws N new episodes at a time (lots, start poses,
@@ -33,8 +34,8 @@ from torchpark.aids.step import (
     DOCKING_KEYS,
     AidedState,
     AidState,
+    agent_step,
     aided_new_episodes,
-    aided_step,
 )
 from torchpark.config import (
     SEED_LIMIT,
@@ -48,7 +49,7 @@ from torchpark.config import (
 from torchpark.sim.episodes import draw_lots
 from torchpark.sim.layout import build_layout
 from torchpark.sim.observation import observation_dim, observe
-from torchpark.sim.step import ParkingState, new_episodes, parking_step, put_rows_, take_rows
+from torchpark.sim.step import ParkingState, put_rows_, take_rows
 from torchpark.sim.world import World, build_world
 
 # torch.compile keeps the graphs of every compiled partial function in the cache of one
@@ -161,23 +162,20 @@ class ParkingEnv(EnvBase):
         self.num_envs = num_envs
         self.config = cfg = config if config is not None else ParkingConfig()
         self.aids = aids
+        # The aids' settings the step and reset read: none on, when there is no aid.
+        self._agent = agent = aids if aids is not None else AidsConfig()
         self.validate_actions = validate_actions
         self._occupancy = cfg.occupancy
         self.layout = build_layout(cfg.lot, cfg.vehicle, self.device)
-        # SuccessCurriculum and set_success_threshold change the world's threshold in place;
+        # set_success_threshold changes the world's threshold in place;
         # a compiled step reads it at run time.
         self._world = build_world(self.layout, cfg)
-        if aids is not None and aids.brake is not None:
-            check_margin(aids.brake.margin, self._world, cfg.vehicle)
-        if aids is None:
-            step = partial(parking_step, world=self._world, cfg=cfg)
-            reset = partial(new_episodes, world=self._world, cfg=cfg)
-        else:
-            angles = steer_angles(cfg, aids.brake, self.device) if aids.brake is not None \
-                else torch.empty(0, device=self.device)
-            step = partial(aided_step, world=self._world, steer_angles=angles, cfg=cfg,
-                           aids=aids)
-            reset = partial(aided_new_episodes, world=self._world, cfg=cfg)
+        if agent.brake is not None:
+            check_margin(agent.brake.margin, self._world, cfg.vehicle)
+        angles = steer_angles(cfg, agent.brake, self.device) if agent.brake is not None \
+            else torch.empty(0, device=self.device)
+        step = agent_step(self._world, angles, cfg, aids)
+        reset = partial(aided_new_episodes, world=self._world, cfg=cfg)
         # A held action's steps of dt are one function (one graph when compiled).
         step = hold(step, self.action_repeat)
         if compile_step:
@@ -189,10 +187,8 @@ class ParkingEnv(EnvBase):
         # drawn ahead and handed out in order, each once, to the rows that reset.
         self._new_episodes = reset
         # The aids' output keys this env emits.
-        self._aid_keys = () if aids is None else (
-            (BRAKE_KEYS if aids.brake is not None else ())
-            + (DOCKING_KEYS if aids.docking is not None else ()))
-        self._observe_position = aids is not None and aids.observe_position
+        self._aid_keys = ((BRAKE_KEYS if agent.brake is not None else ())
+                          + (DOCKING_KEYS if agent.docking is not None else ()))
         self._make_specs()
         self._generator = torch.Generator(device=self.device)
         self._set_seed(seed)
@@ -208,7 +204,7 @@ class ParkingEnv(EnvBase):
     def action_repeat(self) -> int:
         """Steps of dt one env step holds its action for (``aids.action_repeat``; 1 without
         aids): frames per env step."""
-        return 1 if self.aids is None else self.aids.action_repeat
+        return self._agent.action_repeat
 
     @property
     def occupancy(self) -> float:
@@ -238,7 +234,7 @@ class ParkingEnv(EnvBase):
         or a 0-d tensor (copied on device, no host sync, so it is not checked). With
         near-goal starts, which are drawn clear of the success test, the episodes drawn ahead
         are discarded."""
-        if self.aids is not None and self.aids.near_goal_starts is not None:
+        if self._agent.near_goal_starts is not None:
             self._ahead_used = self.num_envs
         if isinstance(value, torch.Tensor):
             if value.dim() != 0 or not value.is_floating_point():
@@ -270,7 +266,7 @@ class ParkingEnv(EnvBase):
             cost=Unbounded(shape=(n, 1), dtype=torch.float32, device=dev),
             **aid_specs,
             **({"position": Unbounded(shape=(n, 2), dtype=torch.float32, device=dev)}
-               if self._observe_position else {}),
+               if self._agent.observe_position else {}),
             shape=(n,),
             device=dev,
         )
@@ -305,28 +301,23 @@ class ParkingEnv(EnvBase):
         return ParkingState(*(t.clone() for t in self._sim))
 
     @property
-    def aid_state(self) -> AidState | None:
-        """A copy of the aids' per-env state (None without aids)."""
-        return None if self.aids is None else AidState(*(t.clone() for t in self._aids))
+    def aid_state(self) -> AidState:
+        """A copy of the aids' per-env state (inert without aids: never braked, no
+        intervention, the docking law never engaged)."""
+        return AidState(*(t.clone() for t in self._aids))
 
     @property
     def _sim(self) -> ParkingState:
         """The paper's state, the env's own tensors (a reset writes its rows in place)."""
-        return self._state.sim if self.aids is not None else self._state
+        return self._state.sim
 
     @property
-    def _aids(self) -> AidState | None:
-        return self._state.aids if self.aids is not None else None
-
-    def _keep(self, sim: ParkingState, aid: AidState | None = None) -> None:
-        """Hold the paper's state and, with aids, the aids' (``aid``; the current one by
-        default)."""
-        self._state = sim if self.aids is None else AidedState(
-            sim, self._aids if aid is None else aid)
+    def _aids(self) -> AidState:
+        return self._state.aids
 
     def _write_rows(self, index: torch.Tensor, state: tuple, observation: torch.Tensor,
                     cost: torch.Tensor) -> None:
-        """Write B new rows (a state of the env's kind, observation (B, D), cost (B,)) into
+        """Write B new rows (an ``AidedState``, observation (B, D), cost (B,)) into
         the rows ``index`` (B,) int64, in place: the other rows are not touched."""
         put_rows_(self._state, index, state)
         self._observation.index_copy_(0, index, observation)
@@ -357,20 +348,19 @@ class ParkingEnv(EnvBase):
                                "others hold no lot): call env.reset() first, or pass all rows")
         index = rows.nonzero()[:, 0]
         sim = take_rows(state, index)
-        fresh = sim if self.aids is None else AidedState(
-            sim, AidState.zeros(index.shape[0], self.device))
+        fresh = AidedState(sim, AidState.zeros(index.shape[0], self.device))
         self._check_state(fresh, "state")
         observation, cost = observe(sim, self._world, self.config)
         self._write_rows(index, fresh, observation, cost)
         self._started = True
         return self._reset_output()
 
-    def _check_state(self, state: tuple, name: str) -> None:
-        """ValueError naming ``name.field`` where a state of the env's kind (rows [B, ...])
+    def _check_state(self, state: AidedState, name: str) -> None:
+        """ValueError naming ``name.field`` where a state (rows [B, ...])
         holds what no episode can: a non-finite pose, speed or goal, a goal slot outside the
         lot's, a presence other than 0 or 1, a negative step or intervention count, an
         occupancy outside [0, 1]. One read-back: for set_state and restore, not the step."""
-        sim, aid = (state, None) if self.aids is None else state
+        sim, aid = state
         slots = self._world.goal_poses.shape[0]
         checks = [
             ("pose", torch.isfinite(sim.pose).all(), "finite"),
@@ -381,31 +371,27 @@ class ParkingEnv(EnvBase):
             ("present", ((sim.present == 0) | (sim.present == 1)).all(), "0 or 1"),
             ("steps", (sim.steps >= 0).all(), ">= 0"),
             ("occupancy", ((sim.occupancy >= 0) & (sim.occupancy <= 1)).all(), "in [0, 1]"),
+            ("aids.interventions", (aid.interventions >= 0).all(), ">= 0"),
         ]
-        if aid is not None:
-            checks.append(("aids.interventions", (aid.interventions >= 0).all(), ">= 0"))
         held = torch.stack([ok for _, ok, _ in checks]).tolist()  # the one read-back
         for (field, _, allowed), fine in zip(checks, held, strict=True):
             if not fine:
                 raise ValueError(f"{name}.{field} must be {allowed} in every row")
 
-    def _zeros(self) -> tuple:
-        """A state of the env's kind holding no lot, with its observation and cost: zeros."""
+    def _zeros(self) -> tuple[AidedState, torch.Tensor, torch.Tensor]:
+        """A state holding no lot, with its observation and cost: zeros."""
         n, m = self.num_envs, self._world.obstacles.cx.shape[0]
-        sim = ParkingState.zeros(n, m, self.device)
-        return (sim if self.aids is None else AidedState(sim, AidState.zeros(n, self.device)),
+        return (AidedState(ParkingState.zeros(n, m, self.device), AidState.zeros(n, self.device)),
                 torch.zeros(n, self.obs_dim, device=self.device),
                 torch.zeros(n, device=self.device))
 
-    def _flat(self, state: tuple, observation: torch.Tensor, cost: torch.Tensor,
+    def _flat(self, state: AidedState, observation: torch.Tensor, cost: torch.Tensor,
               prefix: str = "") -> dict[str, torch.Tensor]:
-        """A state of the env's kind with its observation and cost as named copies."""
-        sim, aid = (state, None) if self.aids is None else state
+        """A state with its observation and cost as named copies."""
+        sim, aid = state
         fields = {f"{prefix}state.{k}": v for k, v in zip(ParkingState._fields, sim,
                                                            strict=True)}
-        if aid is not None:
-            fields |= {f"{prefix}aids.{k}": v for k, v in zip(AidState._fields, aid,
-                                                              strict=True)}
+        fields |= {f"{prefix}aids.{k}": v for k, v in zip(AidState._fields, aid, strict=True)}
         fields |= {f"{prefix}observation": observation, f"{prefix}cost": cost}
         return {k: v.clone() for k, v in fields.items()}
 
@@ -415,16 +401,15 @@ class ParkingEnv(EnvBase):
         def get(name: str) -> torch.Tensor:
             return fields[prefix + name].to(self.device, copy=True)
 
-        sim = ParkingState(*(get(f"state.{k}") for k in ParkingState._fields))
-        state = sim if self.aids is None else AidedState(
-            sim, AidState(*(get(f"aids.{k}") for k in AidState._fields)))
+        state = AidedState(ParkingState(*(get(f"state.{k}") for k in ParkingState._fields)),
+                           AidState(*(get(f"aids.{k}") for k in AidState._fields)))
         return state, get("observation"), get("cost")
 
     def _build(self) -> dict:
         """How the env was built (what its state's meaning depends on), as plain data: the
         number of lots, the task's config and the aids'."""
         return {"num_envs": self.num_envs, "config": dataclasses.asdict(self.config),
-                "aids": None if self.aids is None else dataclasses.asdict(self.aids)}
+                "aids": dataclasses.asdict(self._agent)}
 
     def snapshot(self) -> dict[str, torch.Tensor | float | bool | int | dict]:
         """Everything the env's future depends on, as plain tensors and numbers (safe for
@@ -443,16 +428,11 @@ class ParkingEnv(EnvBase):
         """Continue exactly from a :meth:`snapshot` of an env built the same way (same
         ``num_envs``, config and aids). All or nothing: every entry is checked before any is
         written, and a ValueError names the entry that does not fit (the env is then left as
-        it was). A snapshot of an older version, without episodes drawn ahead, continues with
-        none."""
+        it was)."""
         if not isinstance(snapshot, dict):
             raise TypeError(f"snapshot must be a dict from ParkingEnv.snapshot, got "
                             f"{type(snapshot).__name__}")
         expected = self.snapshot()
-        if not any(k.startswith("ahead") for k in snapshot):  # an older version's
-            snapshot = {**snapshot, **{k: v for k, v in expected.items()
-                                       if k.startswith("ahead.")},
-                        "ahead_used": self.num_envs}
         missing = sorted(set(expected) - set(snapshot))
         if missing or set(snapshot) - set(expected):
             raise ValueError(f"snapshot must hold exactly {sorted(expected)}; missing "
@@ -489,8 +469,7 @@ class ParkingEnv(EnvBase):
                 raise ValueError(f"snapshot['{prefix}observation'] and ['{prefix}cost'] must "
                                  f"be finite")
         # Everything fits: written from here on, nothing can fail half-way.
-        state, self._observation, self._cost = current
-        self._keep(*((state,) if self.aids is None else state))
+        self._state, self._observation, self._cost = current
         self._generator.set_state(snapshot["generator"])
         self.occupancy = occupancy
         self.set_success_threshold(threshold.to(self.device))
@@ -507,7 +486,7 @@ class ParkingEnv(EnvBase):
         """
         steps = torch.randint(self.config.max_steps, (self.num_envs,),
                               generator=self._generator, device=self.device)
-        self._keep(self._sim._replace(steps=steps))
+        self._state = self._state._replace(sim=self._sim._replace(steps=steps))
 
     # ------------------------------------------------------------------ pictures
     def render(self, index: int = 0) -> np.ndarray:
@@ -540,7 +519,7 @@ class ParkingEnv(EnvBase):
     def _outputs(self, **fields: torch.Tensor) -> TensorDictBase:
         # Copies: a later reset writes the env's tensors in place.
         aid_outputs = {key: getattr(self._aids, key)[:, None].clone() for key in self._aid_keys}
-        if self._observe_position:
+        if self._agent.observe_position:
             aid_outputs["position"] = self._sim.pose[:, :2].clone()
         return TensorDict(
             {**fields, "observation": self._observation.clone(),  # the caller's, not our buffer
@@ -578,12 +557,10 @@ class ParkingEnv(EnvBase):
         out yet."""
         n = self.num_envs
         lots = draw_lots(n, self._occupancy, self.layout, self.config.lot, self._generator)
-        draws = (lots,)
-        if self.aids is not None:
-            near = self.aids.near_goal_starts
-            draws += (None if near is None else draw_near(self._world.goal_poses[lots.goal_slot],
-                                                          near, self._generator),)
-        self._ahead, self._ahead_used = self._new_episodes(*draws), 0
+        near = self._agent.near_goal_starts
+        near_draw = None if near is None else draw_near(self._world.goal_poses[lots.goal_slot],
+                                                        near, self._generator)
+        self._ahead, self._ahead_used = self._new_episodes(lots, near_draw), 0
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         if not self._started:

@@ -10,8 +10,8 @@ import torch
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
-from torchpark.aids.features import goal_in_vehicle_frame
 from torchpark.sim.observation import NAV_DIM
+from torchpark.transforms.features import goal_in_vehicle_frame
 
 # Failure modes: a collision at |v| <= GRAZING_SPEED is "grazing" (the car crept into an
 # obstacle); a timeout whose rear axle moved less than FREEZE_DISTANCE over its last

@@ -8,6 +8,10 @@ import zipfile
 from pathlib import Path
 
 import torch
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from trainers.config import TrainConfig, check_flags
 
 # What every checkpoint holds (evaluation needs no more); a full one, written by the
 # trainer, can also be resumed from.
@@ -51,6 +55,19 @@ def load_checkpoint(path: str | Path, device: torch.device | str = "cpu",
                          f"in config.{interpolated}: a saved config holds values, never "
                          f"something to resolve")
     return checkpoint
+
+
+def load_trained(path: str | Path) -> tuple[TrainConfig, dict]:
+    """A checkpoint's training config and contents (tensors on the CPU); ValueError naming
+    the path when it is not a torchpark checkpoint or its config is not a TrainConfig's."""
+    checkpoint = load_checkpoint(path)
+    try:
+        check_flags(checkpoint["config"])
+        merged = OmegaConf.merge(OmegaConf.structured(TrainConfig), checkpoint["config"])
+        return OmegaConf.to_object(merged), checkpoint
+    except (OmegaConfBaseException, ValueError) as err:
+        raise ValueError(f"checkpoint {str(path)!r} has an invalid config: "
+                         f"{str(err).splitlines()[0]}") from None
 
 
 def _interpolation(config: object, name: str = "") -> str | None:

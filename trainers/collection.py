@@ -62,8 +62,8 @@ class RankCollection:
     each batch).
     """
 
-    def __init__(self, cfg: TrainConfig, actor: Any, world: World, remaining_frames: int,
-                 reduce: Any = None) -> None:
+    def __init__(self, cfg: TrainConfig, actor: Any, world: World, remaining_frames: int
+                 ) -> None:
         d = cfg.dist
         self.cfg, self.world, self.backend = cfg, world, d.collectors
         self.workers = d.num_collectors
@@ -77,7 +77,7 @@ class RankCollection:
         if self.direct:
             self.env = make_env(cfg, num_envs=num_envs,
                                 seed=rank_seed(cfg.seed, world.rank, d.world_size),
-                                replicas=d.world_size, reduce=reduce)
+                                replicas=d.world_size)
             self.collector = Collector(self.env, actor, frames_per_batch=steps_per_batch,
                                        total_frames=total_steps, device=world.device,
                                        compile_policy=cfg.collector.compile_policy)

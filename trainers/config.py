@@ -17,7 +17,7 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts
-from torchpark.config import ParkingConfig, RewardConfig, check_seed
+from torchpark.config import ParkingConfig, RewardConfig, check_seed, require
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.env import check_device
 
@@ -80,8 +80,7 @@ class AgentConfig:
 class TrainAidsConfig:
     """Aids of training only: evaluation keeps the paper's starts, reward and success test."""
 
-    # The training env's success threshold on C; curriculum.success_start replaces it with a
-    # curriculum.
+    # The training env's success threshold on C (the paper's 4e-4 by default).
     success_threshold: float = 4e-4
     # The probability that a training episode starts near its goal (NearGoalStarts), and the
     # near-goal box: reach, lateral, heading (m, m, rad).
@@ -101,14 +100,6 @@ class TrainAidsConfig:
 class CurriculumConfig:
     levels: list[float] = field(default_factory=lambda: list(PAPER_LEVELS))
     frames_per_level: int = 2_000_000
-    # torchpark.SuccessCurriculum: the training threshold starts at success_start and, every
-    # success_window frames in which at least success_target of the ended episodes
-    # succeeded, is multiplied by success_factor, down to the paper's 4e-4. None: no such
-    # curriculum (the threshold is env.success_threshold).
-    success_start: float | None = None
-    success_factor: float = 0.5
-    success_target: float = 0.5
-    success_window: int = 163_840
 
 
 @dataclass
@@ -130,15 +121,7 @@ class LossConfig:
     mini_batch_size: int = 64
     ppo_epochs: int = 10
     reward_scale: float = 1.0  # rewards are multiplied by this before GAE and the critic
-    # A run started from a checkpoint (--init) may be held to that actor near the goal:
-    # anchor_coef x the squared distance of the actor's deterministic action from the
-    # initial actor's, in states within anchor_reach m of the goal (trainers.anchor).
-    anchor_coef: float = 0.0
-    anchor_reach: float = 8.0
-    # Caps the ratio of the new policy's probability to the sampling one's in the surrogate
-    # (torchrl's ClipPPOLoss max_importance_ratio; None: uncapped). A saturated TanhNormal
-    # draw's density moves by hundreds of nats with its mean, and exp overflows without it.
-    max_importance_ratio: float | None = None
+
 
 
 @dataclass
@@ -200,11 +183,6 @@ class TrainConfig:
     seed: int = 0
 
 
-def _paper() -> TrainConfig:
-    """Stable-Baselines3's PPO defaults, as the paper used: one env, 2048 steps per rollout."""
-    return TrainConfig(logger=LoggerConfig(exp_name="paper"))
-
-
 def _fast() -> TrainConfig:
     """What a batched env allows: many compiled envs, short rollouts, a few epochs, and the
     agent-side aids that made the task learnable here (all documented in the README): each
@@ -226,24 +204,6 @@ def _fast() -> TrainConfig:
     )
 
 
-def _alone() -> TrainConfig:
-    """The policy alone, fine-tuned in the paper's env: ``fast``'s batches and curriculum with
-    the paper's agent (no brake, no docking law, one action per step of dt) acting through a
-    gear head and a cubic speed map, for a run started (``--init``) from the student that
-    ``trainers.distill`` cloned from the hybrid: std e^-2, lr 3e-5, 4 epochs, held to the
-    student within 8 m of the goal (``loss.anchor_coef``) and PPO's ratio capped at 10 (the
-    student's saturated gear)."""
-    fast = _fast()
-    return replace(
-        fast,
-        agent=AgentConfig(action_exponents=[3.0, 1.0], gear_head=True, goal_features=True),
-        loss=replace(fast.loss, ppo_epochs=4, anchor_coef=1.0, max_importance_ratio=10.0),
-        optim=OptimConfig(lr=3e-5),
-        model=replace(fast.model, init_log_std=-2.0),
-        logger=LoggerConfig(exp_name="alone"),
-    )
-
-
 def _smoke() -> TrainConfig:
     """A few thousand frames, under a minute: for tests and CI."""
     return TrainConfig(
@@ -255,7 +215,9 @@ def _smoke() -> TrainConfig:
     )
 
 
-PRESETS = {"paper": _paper, "fast": _fast, "alone": _alone, "smoke": _smoke}
+# The paper's own recipe runs on the paper's own tool chain (trainers.sb3_paper, which made
+# results/paper/), not as a preset here: one way to run it.
+PRESETS = {"fast": _fast, "smoke": _smoke}
 
 
 def load_config(preset: str, overrides: list[str] | None = None) -> TrainConfig:
@@ -319,87 +281,39 @@ def env_configs(cfg: TrainConfig, training: bool) -> tuple[ParkingConfig, AidsCo
                               near_goal_starts=near, observe_position=agent.observe_position)
 
 
-# Where a field lived in checkpoints written before the config had agent and train sections
-# (and before torchrl's recipe names): old dot name -> new dot name.
-_MOVED = {
-    **{f"env.{name}": f"agent.{name}" for name in (
-        "action_repeat", "action_exponents", "goal_features", "emergency_brake", "steer_clear",
-        "observe_brake", "docking", "docking_reach", "docking_lateral", "docking_heading")},
-    **{f"env.{name}": f"train.{name}" for name in (
-        "success_threshold", "near_goal_starts", "near_goal_reach", "near_goal_lateral",
-        "near_goal_heading", "brake_penalty")},
-    "loss.entropy_coeff": "loss.entropy_coef",
-    "loss.critic_coeff": "loss.critic_coef",
-    "loss.max_grad_norm": "optim.max_grad_norm",
-}
-
-
-def upgrade_saved(saved: dict) -> dict:
-    """A config dict as saved in a checkpoint, with fields of the earlier layout moved to
-    where they live now (``_MOVED``); a current one is returned as it is."""
-    upgraded = {section: dict(fields) if isinstance(fields, dict) else fields
-                for section, fields in saved.items()}
-    for old, new in _MOVED.items():
-        old_section, old_name = old.split(".")
-        fields = upgraded.get(old_section)
-        if isinstance(fields, dict) and old_name in fields:
-            new_section, new_name = new.split(".")
-            upgraded.setdefault(new_section, {})[new_name] = fields.pop(old_name)
-    return upgraded
-
-
-def _require(ok: bool, name: str, allowed: str, value: object) -> None:
-    if not ok:
-        raise ValueError(f"{name} must be {allowed}, got {value!r}")
-
-
 def _check(cfg: TrainConfig) -> None:
     """Every range the types do not already fix (OmegaConf checks those), by dot name."""
     finite = math.isfinite
     loss, c = cfg.loss, cfg.curriculum
-    _require(finite(loss.gamma) and 0 < loss.gamma <= 1, "loss.gamma", "in (0, 1]", loss.gamma)
-    _require(0 <= loss.gae_lambda <= 1, "loss.gae_lambda", "in [0, 1]", loss.gae_lambda)
+    require(finite(loss.gamma) and 0 < loss.gamma <= 1, "loss.gamma", "in (0, 1]", loss.gamma)
+    require(0 <= loss.gae_lambda <= 1, "loss.gae_lambda", "in [0, 1]", loss.gae_lambda)
     for name in ("clip_epsilon", "critic_coef", "reward_scale"):
         value = getattr(loss, name)
-        _require(finite(value) and value > 0, f"loss.{name}", "a finite number > 0", value)
-    _require(finite(cfg.optim.max_grad_norm) and cfg.optim.max_grad_norm > 0,
+        require(finite(value) and value > 0, f"loss.{name}", "a finite number > 0", value)
+    require(finite(cfg.optim.max_grad_norm) and cfg.optim.max_grad_norm > 0,
              "optim.max_grad_norm", "a finite number > 0", cfg.optim.max_grad_norm)
-    for name in ("entropy_coef", "anchor_coef"):
-        value = getattr(loss, name)
-        _require(finite(value) and value >= 0, f"loss.{name}", "a finite number >= 0", value)
-    _require(finite(loss.anchor_reach) and loss.anchor_reach > 0, "loss.anchor_reach",
-             "a finite number > 0", loss.anchor_reach)
-    ratio = loss.max_importance_ratio
-    _require(ratio is None or (finite(ratio) and ratio > 1), "loss.max_importance_ratio",
-             "null or a finite number > 1", ratio)
-    _require(finite(cfg.train.collision_penalty) and cfg.train.collision_penalty <= 0,
+    require(finite(loss.entropy_coef) and loss.entropy_coef >= 0, "loss.entropy_coef",
+             "a finite number >= 0", loss.entropy_coef)
+    require(finite(cfg.train.collision_penalty) and cfg.train.collision_penalty <= 0,
              "train.collision_penalty", "a finite number <= 0", cfg.train.collision_penalty)
-    _require(loss.ppo_epochs >= 1, "loss.ppo_epochs", "an int >= 1", loss.ppo_epochs)
-    _require(finite(cfg.optim.lr) and cfg.optim.lr > 0, "optim.lr", "a finite number > 0",
+    require(loss.ppo_epochs >= 1, "loss.ppo_epochs", "an int >= 1", loss.ppo_epochs)
+    require(finite(cfg.optim.lr) and cfg.optim.lr > 0, "optim.lr", "a finite number > 0",
              cfg.optim.lr)
-    _require(len(cfg.model.hidden) >= 1 and min(cfg.model.hidden) >= 1, "model.hidden",
+    require(len(cfg.model.hidden) >= 1 and min(cfg.model.hidden) >= 1, "model.hidden",
              "a non-empty list of ints >= 1", cfg.model.hidden)
     # Beyond e^2 the TanhNormal's pre-tanh draws saturate (every action at a bound); beyond
     # e^88 its std overflows float32 and the first batch's actions are NaN.
-    _require(finite(cfg.model.init_log_std) and -20 <= cfg.model.init_log_std <= 2,
+    require(finite(cfg.model.init_log_std) and -20 <= cfg.model.init_log_std <= 2,
              "model.init_log_std", "a number in [-20, 2] (the log of the policy's first std)",
              cfg.model.init_log_std)
-    _require(cfg.logger.checkpoint_every >= 1, "logger.checkpoint_every", "an int >= 1",
+    require(cfg.logger.checkpoint_every >= 1, "logger.checkpoint_every", "an int >= 1",
              cfg.logger.checkpoint_every)
-    _require(cfg.logger.exp_name not in ("", ".", "..") and "/" not in cfg.logger.exp_name,
+    require(cfg.logger.exp_name not in ("", ".", "..") and "/" not in cfg.logger.exp_name,
              "logger.exp_name", "a folder name (no '/')", cfg.logger.exp_name)
-    _require(len(c.levels) >= 1 and all(0 <= v <= 1 for v in c.levels), "curriculum.levels",
+    require(len(c.levels) >= 1 and all(0 <= v <= 1 for v in c.levels), "curriculum.levels",
              "a non-empty list of numbers in [0, 1]", c.levels)
-    _require(c.frames_per_level >= 1, "curriculum.frames_per_level", "an int >= 1",
+    require(c.frames_per_level >= 1, "curriculum.frames_per_level", "an int >= 1",
              c.frames_per_level)
-    _require(c.success_start is None or (finite(c.success_start) and c.success_start > 0),
-             "curriculum.success_start", "None or a finite number > 0", c.success_start)
-    _require(0 < c.success_factor < 1, "curriculum.success_factor", "in (0, 1)",
-             c.success_factor)
-    _require(0 <= c.success_target <= 1, "curriculum.success_target", "in [0, 1]",
-             c.success_target)
-    _require(c.success_window >= 1, "curriculum.success_window", "an int >= 1",
-             c.success_window)
     check_seed(cfg.seed, "seed")
     check_device(cfg.env.device, "env.device")
     check_agent(cfg)
@@ -409,7 +323,7 @@ def _check(cfg: TrainConfig) -> None:
     if batch < n * k or batch % (n * k):
         raise ValueError(f"collector.frames_per_batch must be a multiple of env.num_envs x "
                          f"agent.action_repeat = {n * k}, got {batch}")
-    _require(cfg.collector.total_frames >= batch, "collector.total_frames",
+    require(cfg.collector.total_frames >= batch, "collector.total_frames",
              f">= collector.frames_per_batch = {batch}", cfg.collector.total_frames)
     if not 1 <= cfg.loss.mini_batch_size <= batch // k:
         raise ValueError(f"loss.mini_batch_size must be in [1, frames_per_batch / action_repeat"
@@ -424,48 +338,46 @@ def check_agent(cfg: TrainConfig) -> None:
             env_configs(cfg, training)
         except (TypeError, ValueError) as err:
             raise ValueError(f"env: {err}") from None
-    _require(not cfg.agent.observe_brake or cfg.agent.emergency_brake, "agent.observe_brake",
+    require(not cfg.agent.observe_brake or cfg.agent.emergency_brake, "agent.observe_brake",
              "False without agent.emergency_brake (there is no brake flag to observe)",
              cfg.agent.observe_brake)
-    _require(not cfg.agent.gear_head or cfg.agent.action_exponents is not None,
+    require(not cfg.agent.gear_head or cfg.agent.action_exponents is not None,
              "agent.gear_head", "False without agent.action_exponents (the gear picks a pair "
              "of [-1, 1] actions for the power map)", cfg.agent.gear_head)
-    _require(cfg.agent.steer_clear == 0 or cfg.agent.emergency_brake, "agent.steer_clear",
+    require(cfg.agent.steer_clear == 0 or cfg.agent.emergency_brake, "agent.steer_clear",
              "0 without agent.emergency_brake", cfg.agent.steer_clear)
-    _require(cfg.agent.brake_margin == 0 or cfg.agent.emergency_brake, "agent.brake_margin",
+    require(cfg.agent.brake_margin == 0 or cfg.agent.emergency_brake, "agent.brake_margin",
              "0 without agent.emergency_brake", cfg.agent.brake_margin)
     for name in ("docking_reach", "docking_lateral", "docking_heading"):
         value, default = getattr(cfg.agent, name), getattr(AgentConfig, name)
-        _require(cfg.agent.docking or value == default, f"agent.{name}",
+        require(cfg.agent.docking or value == default, f"agent.{name}",
                  f"{default:g} (its default) without agent.docking", value)
 
 
 def _check_dist(cfg: TrainConfig) -> None:
     """The dist section against the sizes it splits."""
     d = cfg.dist
-    _require(d.world_size >= 1, "dist.world_size", "an int >= 1", d.world_size)
-    _require(d.collectors != "distributed", "dist.collectors", "direct, process, ray or rpc "
+    require(d.world_size >= 1, "dist.world_size", "an int >= 1", d.world_size)
+    require(d.collectors != "distributed", "dist.collectors", "direct, process, ray or rpc "
              "(torchrl 0.14's DistributedCollector reaches no worker-side state, so the "
              "workers' normalisers could not be kept consistent: use rpc)", d.collectors)
-    _require(d.collectors in COLLECTOR_BACKENDS, "dist.collectors",
+    require(d.collectors in COLLECTOR_BACKENDS, "dist.collectors",
              f"one of {list(COLLECTOR_BACKENDS)}", d.collectors)
-    _require(d.collectors != "ray" or importlib.util.find_spec("ray") is not None,
+    require(d.collectors != "ray" or importlib.util.find_spec("ray") is not None,
              "dist.collectors", "direct, process or rpc: ray needs Ray installed (pip install "
              "-e '.[ray]')", d.collectors)
-    _require(d.num_collectors >= 1, "dist.num_collectors", "an int >= 1", d.num_collectors)
-    _require(d.collectors != "direct" or d.num_collectors == 1, "dist.num_collectors",
+    require(d.num_collectors >= 1, "dist.num_collectors", "an int >= 1", d.num_collectors)
+    require(d.collectors != "direct" or d.num_collectors == 1, "dist.num_collectors",
              "1 with dist.collectors=direct (name a backend for several workers)",
              d.num_collectors)
     replicas = d.world_size * d.num_collectors
-    _require(cfg.env.num_envs % replicas == 0, "env.num_envs",
+    require(cfg.env.num_envs % replicas == 0, "env.num_envs",
              f"a multiple of dist.world_size x dist.num_collectors = {replicas}",
              cfg.env.num_envs)
-    _require(cfg.loss.mini_batch_size % d.world_size == 0, "loss.mini_batch_size",
+    require(cfg.loss.mini_batch_size % d.world_size == 0, "loss.mini_batch_size",
              f"a multiple of dist.world_size = {d.world_size} (each rank takes its share)",
              cfg.loss.mini_batch_size)
-    _require(d.collectors == "direct" or cfg.curriculum.success_start is None,
-             "curriculum.success_start", "None with collector workers (their success counts "
-             "are not shared within a batch)", cfg.curriculum.success_start)
+
 
 
 __all__ = ["PRESETS", "TrainConfig", "check_agent", "load_config", "override", "replace"]

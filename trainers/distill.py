@@ -1,68 +1,50 @@
-"""A teacher-distilled policy: the hybrid agent (policy + emergency brake + docking law)
-distilled into one network that drives the paper's env alone.
+"""The policy alone (``results/policy_alone/``): the hand-written expert (approach planner +
+docking law + brake, :mod:`torchpark.experts`) distilled by DAgger into one network that
+drives the paper's env with nothing around it.
 
     python -m trainers.distill TEACHER --out DIR [--iterations 2] [--envs 128] [--steps 400]
                                              [--epochs 32] [--dagger-epochs 16]
-                                             [--approach 32768] [--seed 0] [--overwrite]
-                                             [--planner] [--clearance-features]
+                                             [--approach 32768] [--approach-weight 1]
+                                             [--seed 0] [--overwrite] [--clearance-features]
                                              [--position] [--settle 0.05] [--retry 1]
                                              [--lr-decay] [--width 512] [--depth 3]
 
+TEACHER is a hybrid checkpoint (``results/fast/checkpoint_final.pt``): its docking law and
+brake join the approach planner in the expert (:class:`Teacher`), its network sizes are the
+student's unless ``--width`` / ``--depth`` say otherwise.
+
 Each iteration runs a driver in lots at every occupancy level, half the starts near the
 goal: the teacher in the first (behaviour cloning), the current student in the later ones
-(DAgger). It labels every state visited with the
-teacher's control there: its policy's action (deterministic, at every step of dt), replaced by
-the docking law in the funnel and steered clear or stopped by the brake
-(:func:`torchpark.aids.step.aided_control`), with the aids' state (the law's gear, the
-brake's flag) tracked along the student's path. The labels join the data and the student is
+(DAgger). It labels every state visited with the teacher's control there
+(:func:`torchpark.aids.step.aided_control`). The labels join the data and the student is
 fitted to all of it (DAgger: Ross, Gordon and Bagnell, 2011): ``epochs`` passes after the
-first iteration, ``dagger_epochs`` after each later one. Half the rows drive with
-Gaussian noise on the control (DART: Laskey et al., 2017), so the data holds the
-corrections back to the teacher's path. What each setting did: docs/experiments.md.
+first iteration, ``dagger_epochs`` after each later one. Half the rows drive with Gaussian
+noise on the control (DART: Laskey et al., 2017), so the data holds the corrections back to
+the teacher's path.
 
 The last millimetre asks for speeds of mm/s, a ten-thousandth of the range, and a steering
-that lines the car up to 0.1 deg: a precision the rollouts alone teach badly (a few of their
-states are that close). The first iteration therefore also labels ``approach`` states per level
-drawn in the law's final approach (up to ``approach_reach`` m behind the goal, within the
-law's settled lateral and heading errors, denser the closer), weighted ``approach_weight``
-times a rollout state. And the student's speed passes through a power map
-(:class:`torchpark.aids.actions.PowerActionMap`, ``speed_exponent`` 3): 1 mm/s is 0.058 of
-its output's range, not 2e-4, so the squared error in the student's own units weighs the
-creep near the goal as it weighs the metres per second away from it.
+that lines the car up to 0.1 deg. The first iteration therefore also labels ``approach``
+states per level drawn in the law's final approach (up to ``approach_reach`` m behind the
+goal, within the law's settled lateral and heading errors, denser the closer), weighted
+``approach_weight`` times a rollout state. The student's speed passes through a power map
+(:class:`torchpark.transforms.actions.PowerActionMap`, ``speed_exponent`` 3): 1 mm/s is 0.058 of
+its output's range, not 2e-4. Where the teacher turns a multi-point manoeuvre, states it
+drives forwards from and states it reverses from look alike: the student outputs a gear
+and a (speed, steer) pair per gear (:class:`torchpark.transforms.actions.GearActionMap`), fitted
+to the label's gear and, for that gear's pair only, to the label.
 
-Where the teacher turns a multi-point manoeuvre (its docking law reverses out of a slot it
-entered crooked, its brake stops it at a car), states it drives forwards from and states it
-reverses from look alike to the student: regressed onto both, a student outputs their mean,
-a speed near 0, and freezes there (85 % of its episodes from uniform starts did, before).
-With ``gear_head`` (the default) the student outputs a gear and a (speed, steer) pair per
-gear (:class:`torchpark.aids.actions.GearActionMap`), fitted to the label's gear (its speed's
-sign) and, for that gear's pair only, to the label: the gear's sign picks one answer.
+The student reads the paper's observation and its goal-frame features, normalised (with
+``--clearance-features`` the gap along each ray; with ``--position`` the rear axle's (x, y)
+in the lot, which the planner's route depends on and the paper's observation lacks) and
+acts at every step of dt: no brake, no law, no held actions.
 
-With ``--planner`` the teacher's policy gives way to the approach planner
-(:mod:`torchpark.aids.planner`): a route that keeps the car off every slot but its goal's,
-so the teacher's approach needs no brake at any occupancy, handing over to the docking law
-once lined up behind the slot (the law's funnel narrowed to the planner's target); the
-checkpoint still gives the law, the brake and the student's sizes. Its labels are a
-function of what the student sees: the law drives wherever the car is in its funnel (not
-from the moment it entered to the episode's end) and in the gear the car moves in (not the
-pass it began), so a student off the teacher's path is not told to reverse where the same
-pose, moving forwards, is told to go on. The planner's route
-depends on where in the lot the car is, which the paper's observation (the goal's offset and
-the rays) does not show; ``--position`` hands the student the rear axle's (x, y) in the lot
-(:attr:`torchpark.AidsConfig.observe_position`).
-
-The student reads what the paper's agent can (the paper's observation and its goal-frame
-features, normalised; the observed speed's sign tells it which way the teacher's multi-point
-turn was going) and acts at every step of dt: no brake, no law, no held actions.
-
-Written into ``--out``: ``checkpoint_final.pt`` (a torchpark checkpoint:
-``python -m trainers.evaluate DIR/checkpoint_final.pt``), ``checkpoint_best.pt`` (the
-iteration that scored best on the checks from uniform starts, :data:`BEST_BY`; their lots
-are not the evaluator's: DAgger's guarantee is for the best policy of the sequence, not the
-last) and ``dagger.csv``, per iteration
-the student's success at the three thresholds on the yardstick (starts 0-6 m behind the
-goal, within 1 m and 0.6 rad of the slot axis, empty lot) and from uniform starts at 0 % and
-90 % occupancy.
+Written into ``--out``: ``checkpoint_final.pt`` (``python -m trainers.evaluate
+DIR/checkpoint_final.pt``), ``checkpoint_best.pt`` (the iteration that scored best on the
+checks from uniform starts, :data:`BEST_BY`, on lots that are not the evaluator's: DAgger's
+guarantee is for the best policy of the sequence, not the last) and ``dagger.csv``, per
+iteration the student's success at the three thresholds on the yardstick (starts 0-6 m
+behind the goal, within 1 m and 0.6 rad of the slot axis, empty lot) and from uniform starts
+at 0 % and 90 % occupancy. What each setting did: research/experiments.md.
 """
 
 from __future__ import annotations
@@ -79,8 +61,19 @@ from tensordict import TensorDict
 from torchrl.envs import Compose, Transform, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchpark.aids.actions import (
-    GEAR_DIM,
+from torchpark.aids.brake import steer_angles
+from torchpark.aids.config import BrakeConfig, DockingConfig
+from torchpark.aids.docking import error_from_goal, in_funnel, in_settle
+from torchpark.aids.starts import near_starts_free
+from torchpark.aids.step import AidedState, AidState, aided_control
+from torchpark.config import check_types, positive, require
+from torchpark.curriculum import PAPER_LEVELS
+from torchpark.experts import ExpertConfig, PlannerConfig
+from torchpark.experts.planner import lot_planner, plan_control
+from torchpark.files import locked, save_torch, write_csv
+from torchpark.runner import run_episodes
+from torchpark.sim.geometry import wrap_angle
+from torchpark.transforms.actions import (
     GearActionMap,
     PowerActionMap,
     gear_inverse,
@@ -88,22 +81,9 @@ from torchpark.aids.actions import (
     power_map,
     power_map_inverse,
 )
-from torchpark.aids.brake import steer_angles
-from torchpark.aids.config import BrakeConfig, DockingConfig, PlannerConfig
-from torchpark.aids.docking import error_from_goal, in_funnel, in_settle
-from torchpark.aids.planner import build_planner, plan_control
-from torchpark.aids.starts import near_starts_free
-from torchpark.aids.step import AidedState, AidState, aided_control
-from torchpark.config import RewardConfig, check_types, positive, require
-from torchpark.curriculum import PAPER_LEVELS
-from torchpark.files import locked, save_torch, write_csv
-from torchpark.runner import run_episodes
-from torchpark.sim.geometry import wrap_angle
-from torchpark.sim.observation import NAV_DIM
-from torchpark.sim.reward import parking_cost
+from trainers.checkpoint import load_trained
 from trainers.config import AgentConfig, EnvConfig, LoggerConfig, TrainConfig, env_configs
-from trainers.evaluate import load
-from trainers.utils import build_models, make_base_env, make_policy, policy_input
+from trainers.utils import build_models, make_base_env, policy_input
 
 # The student's raw input (before normalisation): the paper's observation, the goal seen
 # from the car (torchpark.GoalFrameFeatures) and optionally the rays' clearance.
@@ -113,37 +93,22 @@ STUDENT_INPUT = "observation_policy"
 @dataclass(frozen=True)
 class DistillConfig:
     """DAgger's schedule. ``envs`` lots per rollout, ``steps`` steps of dt at each occupancy
-    level per iteration; ``near_goal``: the fraction of starts near the goal (the teacher's
-    training box); ``noise``: the std of the Gaussian noise on the noisy rows' actions (in
-    [-1, 1] units); ``release``: the teacher's docking law lets go of a student more than
-    ``release`` m outside the region it drives in (0 to ``run_in`` m behind the goal, within
-    ``lateral`` m of the slot axis), and the teacher's policy labels there (None: the law
-    keeps the wheel to the episode's end, as in the hybrid); ``yardstick``: episodes per
-    check after each iteration; ``approach``: final-approach states labelled per level in
-    the first iteration (0: none; in every iteration with ``refresh_approach``, so they keep
-    their share of the growing data), drawn up to ``approach_reach`` m behind the goal and
-    weighted ``approach_weight`` times a rollout state in the fit; ``brake_weight``: the
-    weight of a rollout state where the teacher's brake stopped or steered its label;
-    ``speed_exponent`` /
-    ``steer_exponent``: the student's action map (u in [-1, 1] drives high * sign(u)
-    |u| ** exponent; the fit is the squared error in u); ``gear_head``: the student picks
-    a gear and a (speed, steer) per gear (:func:`imitation_error`); ``clearance_features``:
-    the student also reads the gap along each LIDAR ray (torchpark.ClearanceFeatures);
-    ``position``: and its position in the lot (torchpark.AidsConfig.observe_position);
-    ``planner``: the teacher's policy is replaced by the approach planner
-    (:mod:`torchpark.aids.planner`), the docking law's funnel by the planner's target, or
-    by ``law_reach`` m, ``law_lateral`` m and ``law_heading`` rad where given
-    (:meth:`~torchpark.aids.config.PlannerConfig.law_funnel`);
-    ``settle``: the teacher's law creeps back to the goal from up to ``settle`` m past it
-    (:attr:`~torchpark.aids.config.DockingConfig.settle`), where it would reverse a whole
-    pass; ``retry``: only where the test can still pass, else it reverses ``retry`` m and
-    drives in again (:attr:`~torchpark.aids.config.DockingConfig.retry`; 0: creeps back
-    whatever the errors);
-    ``goal_weight``: the weight of a state inside the 1-cm test (:data:`GOAL_COST`), on top of
-    its others; ``lr_decay``: each fit's learning rate falls from ``lr`` to 0 along a cosine;
-    ``epochs`` /
-    ``dagger_epochs``: passes over the data after the first / each later iteration;
-    ``width`` / ``depth``: the student's hidden layers (None: the teacher's sizes)."""
+    level per iteration; ``near_goal``: the fraction of starts near the goal; ``noise``: the
+    std of the Gaussian noise on the noisy rows' actions (in [-1, 1] units); ``yardstick``:
+    episodes per check after each iteration; ``approach``: final-approach states labelled
+    per level in the first iteration (0: none), drawn up to ``approach_reach`` m behind the
+    goal and weighted ``approach_weight`` times a rollout state in the fit;
+    ``speed_exponent`` / ``steer_exponent``: the student's action map (u in [-1, 1] drives
+    high * sign(u) |u| ** exponent); ``clearance_features``: the student also reads the gap
+    along each LIDAR ray (torchpark.ClearanceFeatures); ``position``: and its position in
+    the lot (torchpark.AidsConfig.observe_position); ``settle``: the teacher's law creeps
+    back to the goal from up to ``settle`` m past it
+    (:attr:`~torchpark.aids.config.DockingConfig.settle`); ``retry``: only where the test
+    can still pass, else it reverses ``retry`` m and drives in again
+    (:attr:`~torchpark.aids.config.DockingConfig.retry`); ``lr_decay``: each fit's learning
+    rate falls from ``lr`` to 0 along a cosine; ``epochs`` / ``dagger_epochs``: passes over
+    the data after the first / each later iteration; ``width`` / ``depth``: the student's
+    hidden layers (None: the teacher's sizes)."""
 
     iterations: int = 2
     envs: int = 128
@@ -157,22 +122,13 @@ class DistillConfig:
     approach: int = 32768
     approach_reach: float = 2.0
     approach_weight: float = 1.0
-    refresh_approach: bool = False
-    brake_weight: float = 1.0
-    goal_weight: float = 1.0
     lr_decay: bool = False
     speed_exponent: float = 3.0
     steer_exponent: float = 1.0
-    gear_head: bool = True
     clearance_features: bool = False
     position: bool = False
-    planner: bool = False
     settle: float = 0.0
     retry: float = 0.0
-    law_reach: float | None = None
-    law_lateral: float | None = None
-    law_heading: float | None = None
-    release: float | None = None
     width: int | None = None
     depth: int | None = None
     yardstick: int = 200
@@ -188,7 +144,7 @@ class DistillConfig:
                     value)
         require(0 <= self.approach <= 1 << 20, "DistillConfig.approach",
                 "an int in [0, 1048576]", self.approach)
-        for name in ("lr", "approach_reach", "approach_weight", "brake_weight", "goal_weight"):
+        for name in ("lr", "approach_reach", "approach_weight"):
             positive(f"DistillConfig.{name}", getattr(self, name))
         for name in ("speed_exponent", "steer_exponent"):
             value = getattr(self, name)
@@ -200,107 +156,59 @@ class DistillConfig:
             value = getattr(self, name)
             require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
                     value)
-        if self.release is not None:
-            positive("DistillConfig.release", self.release)
-        for name in ("law_reach", "law_lateral", "law_heading"):
-            require(self.planner or getattr(self, name) is None, f"DistillConfig.{name}",
-                    "None without planner (the law's funnel where it takes over from the "
-                    "planner)", getattr(self, name))
-        self.planner_config()  # refuses a funnel that does not hold the planner's target
         for name, high in (("width", 4096), ("depth", 8)):
             value = getattr(self, name)
             require(value is None or 1 <= value <= high, f"DistillConfig.{name}",
                     f"None or an int in [1, {high}]", value)
 
-    def planner_config(self) -> PlannerConfig | None:
-        """The teacher's approach planner (None without ``planner``)."""
-        if not self.planner:
-            return None
-        return PlannerConfig(law_reach=self.law_reach, law_lateral=self.law_lateral,
-                             law_heading=self.law_heading)
-
-
 class Teacher:
-    """A hybrid checkpoint's control at any state of a paper's env (its lots, its world).
+    """The hand-written expert's control at any state of a paper's env (its lots, its world):
+    the approach planner (:mod:`torchpark.experts.planner`) up to its own target, the docking
+    law there (a hybrid checkpoint's, creeping back to the goal from up to ``settle`` m past
+    it and, with ``retry``, backing out ``retry`` m where the test cannot pass), the
+    checkpoint's brake under both. ``planner``: its grid and costs (the default's tables
+    take about two minutes to build; tests pass a coarse grid).
 
-    ``label(observation)`` returns the (N, 2) control (v m/s, delta rad) the hybrid agent
-    would drive with there, and advances the aids' state (the docking law's gear, the
-    brake's flag) as if it had; ``forget(rows)`` clears it where episodes ended."""
+    ``label()`` returns the (N, 2) control (v m/s, delta rad) the expert would drive with at
+    the env's state, and advances the brake's flag as if it had (``intervened``: where the
+    brake stopped or steered it). Its labels are a function
+    of what the student sees: the law drives wherever the car is in its funnel (not from the
+    moment it entered to the episode's end) and in the gear the car moves in (not the pass it
+    began), so a student off the teacher's path is not told to reverse where the same pose,
+    moving forwards, is told to go on. ``forget(rows)`` clears the aids' state where
+    episodes ended."""
 
-    def __init__(self, path: str, env: TransformedEnv, release: float | None = None,
-                 planner: PlannerConfig | None = None, settle: float = 0.0,
-                 retry: float = 0.0) -> None:
-        cfg, checkpoint = load(path)
-        _, self.aids = env_configs(cfg, training=False)
-        if self.aids is None or (self.aids.docking is None and self.aids.brake is None):
-            raise ValueError(f"teacher {path!r} has neither the brake nor the docking law: "
-                             f"distil a hybrid agent")
-        given = {name: value for name, value in (("settle", settle), ("retry", retry)) if value}
-        if given:
-            if self.aids.docking is None:
-                raise ValueError(f"teacher {path!r} has no docking law to {next(iter(given))} "
-                                 f"with: drop --{next(iter(given))}")
-            self.aids = dataclasses.replace(self.aids, docking=dataclasses.replace(
-                self.aids.docking, **given))
-        self.actor = make_policy(cfg, checkpoint["actor"])
+    def __init__(self, path: str, env: TransformedEnv, settle: float = 0.0,
+                 retry: float = 0.0, planner: PlannerConfig | None = None) -> None:
+        cfg, _ = load_trained(path)
+        _, aids = env_configs(cfg, training=False)
+        if aids is None or aids.docking is None:
+            raise ValueError(f"teacher {path!r} has no docking law to take over from the "
+                             f"planner: distil a hybrid agent with one")
+        self.expert = ExpertConfig(
+            planner=planner if planner is not None else PlannerConfig(),
+            docking=dataclasses.replace(aids.docking, settle=settle, retry=retry),
+            brake=aids.brake)
+        self.aids = self.expert.aids()
         self.base = env.base_env
-        # With the planner, it drives where the checkpoint's policy did, up to the docking
-        # law's funnel (PlannerConfig.law_funnel).
-        self.planner = None
-        if planner is not None:
-            if self.aids.docking is None:
-                raise ValueError(f"teacher {path!r} has no docking law to take over from the "
-                                 f"planner: drop --planner")
-            self.aids = dataclasses.replace(self.aids,
-                                            docking=planner.law_funnel(self.aids.docking))
-            self.planner = build_planner(self.base.layout, self.base.config.vehicle, planner)
-        # The teacher's own input transforms (goal features, brake flag) with its frozen
-        # normaliser, applied outside an env.
-        probe = make_base_env(cfg, training=False, num_envs=1, seed=0)
-        inputs = policy_input(cfg, probe)
-        inputs[-1].load_state_dict(checkpoint["obs_norm"])
-        TransformedEnv(probe, Compose(*inputs))  # binds the normaliser's specs
-        # The action maps lead policy_input's list; their inverses apply last to first.
-        self.action_maps = [t for t in inputs if isinstance(t, (PowerActionMap, GearActionMap))]
-        self.inputs = Compose(*[t.clone() for t in inputs[len(self.action_maps):-1]],
-                              inputs[-1].to_observation_norm())
-        self.angles = steer_angles(self.base.config, self.aids.brake or BrakeConfig(),
-                                   self.base.device)
+        config = self.base.config
+        self.planner = lot_planner(config.lot, config.vehicle, self.expert.planner,
+                                   str(self.base.device))
+        self.angles = steer_angles(config, self.aids.brake or BrakeConfig(), self.base.device)
         self.state = AidState.zeros(self.base.num_envs, self.base.device)
         # (N,) bool: the brake stopped or steered the last label
         self.intervened = torch.zeros(self.base.num_envs, dtype=torch.bool,
                                       device=self.base.device)
-        self.release = release
 
     @torch.no_grad()
-    def label(self, observation: torch.Tensor) -> torch.Tensor:
-        n = observation.shape[0]
+    def label(self) -> torch.Tensor:
         sim, law = self.base.state, self.aids.docking
-        if self.release is not None and law is not None:
-            error = error_from_goal(sim.pose, sim.goal)
-            near = ((error.remaining >= -self.release)
-                    & (error.remaining <= law.run_in + self.release)
-                    & (error.lateral.abs() <= law.lateral + self.release))
-            self.state = self.state._replace(docking_engaged=self.state.docking_engaged & near,
-                                             docking_reverses=self.state.docking_reverses & near)
-        if self.planner is not None:
-            # No memory the student cannot see: the law drives where the car is in its
-            # funnel, in the gear the car moves in (its reversing pass ends at the funnel's
-            # far end, where the planner brings the car back in).
-            error = error_from_goal(sim.pose, sim.goal)
-            funnel = in_funnel(error, law) | in_settle(error, law)
-            self.state = self.state._replace(docking_engaged=funnel,
-                                             docking_reverses=funnel & (sim.speed < 0))
-            action = torch.stack(plan_control(self.planner, sim.pose, sim.speed,
-                                              sim.goal_slot)[:2], -1)
-        else:
-            td = TensorDict({"observation": observation,
-                             "braked": self.state.braked[:, None]}, [n])
-            with set_exploration_type(ExplorationType.DETERMINISTIC):
-                td = self.actor(self.inputs(td))
-            for action_map in reversed(self.action_maps):
-                td = action_map.inv(td)
-            action = td["action"]
+        error = error_from_goal(sim.pose, sim.goal)
+        funnel = in_funnel(error, law) | in_settle(error, law)
+        self.state = self.state._replace(docking_engaged=funnel,
+                                         docking_reverses=funnel & (sim.speed < 0))
+        action = torch.stack(plan_control(self.planner, sim.pose, sim.speed,
+                                          sim.goal_slot)[:2], -1)
         control = aided_control(AidedState(sim, self.state), action,
                                 self.base.world, self.angles, self.base.config, self.aids)
         self.state, self.intervened = control.aids, control.intervened
@@ -316,14 +224,14 @@ def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
     power action map of ``speed_exponent`` / ``steer_exponent``, the teacher's network sizes
     (each hidden layer ``width`` wide and ``depth`` of them, where given); training starts
     near the goal with probability ``near_goal``."""
-    tcfg, _ = load(teacher)
+    tcfg, _ = load_trained(teacher)
     hidden = list(tcfg.model.hidden)
     if cfg.width is not None or cfg.depth is not None:
         hidden = [cfg.width or hidden[0]] * (cfg.depth or len(hidden))
     student = TrainConfig(
         env=EnvConfig(num_envs=cfg.envs, max_steps=tcfg.env.max_steps),
         agent=AgentConfig(action_exponents=[cfg.speed_exponent, cfg.steer_exponent],
-                          gear_head=cfg.gear_head, goal_features=True,
+                          gear_head=True, goal_features=True,
                           clearance_features=cfg.clearance_features,
                           observe_position=cfg.position),
         model=dataclasses.replace(tcfg.model, hidden=hidden),
@@ -371,7 +279,8 @@ def approach_states(env: TransformedEnv, features: Transform, teacher: Teacher,
                                 base.config)[:, 0]
         teacher.state = AidState.zeros(n, base.device)._replace(
             docking_engaged=torch.ones(n, dtype=torch.bool, device=base.device))
-        control = teacher.label(base.set_state(sim._replace(pose=pose))["observation"])
+        base.set_state(sim._replace(pose=pose))
+        control = teacher.label()
         scale = 2.0 * torch.rand(n, generator=generator, device=base.device)
         moving = base.set_state(sim._replace(pose=pose, speed=control[:, 0] * scale))
         inputs.append(features(moving)[STUDENT_INPUT][free])
@@ -381,66 +290,49 @@ def approach_states(env: TransformedEnv, features: Transform, teacher: Teacher,
 
 def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tensor, steps: int,
             teacher_drives: bool, noise: float, generator: torch.Generator
-            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+            ) -> tuple[torch.Tensor, torch.Tensor]:
     """``steps`` steps of dt of ``env`` (every row reset first), driven by the teacher's
     labels or the student's deterministic actions, noisy on every other row (Gaussian,
     ``noise`` times the env's bounds, added to the env's action). Returns the student's raw
     inputs (steps x N, D) and the teacher's labels there in the student's units (u, the
-    (speed, steer) its power map with ``exponents`` turns into them, which a gear head
-    picks by :func:`~torchpark.aids.actions.gear_select`), and where its brake stopped or
-    steered the label (steps x N,) bool."""
-    gear = env.action_spec.shape[-1] == GEAR_DIM
+    (speed, steer) its power map with ``exponents`` turns into them, which the gear head
+    picks by :func:`~torchpark.transforms.actions.gear_select`)."""
     n = env.base_env.num_envs
     high = env.base_env.action_spec.space.high[0]
     noisy = (torch.arange(n, device=env.device) % 2 == 1)[:, None]
-    inputs, labels, braked = [], [], []
+    inputs, labels = [], []
     teacher.forget(torch.ones(n, dtype=torch.bool, device=env.device))
     td = env.reset()
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(steps):
-            target = power_map_inverse(teacher.label(td["observation"]), high, exponents)
+            target = power_map_inverse(teacher.label(), high, exponents)
             inputs.append(td[STUDENT_INPUT])
             labels.append(target)
-            braked.append(teacher.intervened)
             action = target
             if not teacher_drives:
                 action = actor(td)["action"]
-                action = gear_select(action) if gear else action
+                action = gear_select(action)
             jitter = torch.randn(action.shape, generator=generator, device=action.device)
             control = power_map(action, high, exponents) + noisy * noise * high * jitter
             action = power_map_inverse(control, high, exponents)
-            td["action"] = gear_inverse(action) if gear else action
+            td["action"] = gear_inverse(action)
             td, td_next = env.step_and_maybe_reset(td)
             teacher.forget(td["next", "done"][:, 0])
             td = td_next
-    return torch.cat(inputs), torch.cat(labels), torch.cat(braked)
+    return torch.cat(inputs), torch.cat(labels)
 
 
 def imitation_error(u: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
     """The squared error (N,) of the student's actions u against the teacher's labels (N, 2)
-    (speed, steer), all in [-1, 1]. A plain student's u (N, 2) is compared as it is; a gear
-    head's (N, 5) (:func:`~torchpark.aids.actions.gear_select`) on its gear against the
-    label's (+1 where the label's speed >= 0, else -1) and on that gear's pair only against
-    (|speed|, steer): the other gear's pair is not pulled toward an answer it never gives."""
-    if u.shape[-1] != GEAR_DIM:
-        return (u - label).pow(2).sum(-1)
+    (speed, steer), all in [-1, 1]: the gear head's u (N, 5)
+    (:func:`~torchpark.transforms.actions.gear_select`) on its gear against the label's (+1 where
+    the label's speed >= 0, else -1) and on that gear's pair only against (|speed|, steer):
+    the other gear's pair is not pulled toward an answer it never gives."""
     forward = label[:, 0] >= 0
     speed = torch.where(forward, u[:, 1], u[:, 3])
     steer = torch.where(forward, u[:, 2], u[:, 4])
     return ((u[:, 0] - torch.where(forward, 1.0, -1.0)).pow(2)
             + (speed - label[:, 0].abs()).pow(2) + (steer - label[:, 1]).pow(2))
-
-
-# The cost below which a state is near the goal for DistillConfig.goal_weight: the 1-cm test.
-GOAL_COST = 4e-3
-
-
-def goal_cost(inputs: torch.Tensor) -> torch.Tensor:
-    """The paper's cost C (B,) of the states whose student inputs (B, D) begin with the
-    paper's observation."""
-    dx, dy, cos_psi, sin_psi, v, cos_alpha, sin_alpha = inputs[:, :NAV_DIM].unbind(-1)
-    return parking_cost(dx, dy, torch.atan2(sin_psi, cos_psi),
-                        torch.atan2(sin_alpha, cos_alpha), v, RewardConfig())
 
 
 def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor,
@@ -506,8 +398,10 @@ def check(actor, scfg: TrainConfig, obs_norm: dict, episodes: int, seed: int
     return row
 
 
-def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
-    """Run DAgger; returns the final checkpoint's path."""
+def distill(teacher_path: str, out: Path, cfg: DistillConfig,
+            planner: PlannerConfig | None = None) -> Path:
+    """Run DAgger; returns the final checkpoint's path. ``planner``: the teacher's
+    (:class:`Teacher`)."""
     scfg = student_config(teacher_path, cfg)
     torch.manual_seed(cfg.seed)
     generator = torch.Generator().manual_seed(cfg.seed)
@@ -519,27 +413,18 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
     # outside the env to the final-approach states.
     features = Compose(*[t.clone() for t in inputs[:-1]
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
-    plan = cfg.planner_config()
-    teacher = Teacher(teacher_path, env, cfg.release, plan, cfg.settle, cfg.retry)
-    if cfg.approach and teacher.aids.docking is None:
-        raise ValueError(f"teacher {teacher_path!r} has no docking law to label the final "
-                         f"approach with: pass --approach 0")
+    teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, planner)
     actor, _ = build_models(scfg)
     high = base.action_spec.space.high[0]
     exponents = torch.tensor([cfg.speed_exponent, cfg.steer_exponent], device=base.device)
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
     data_in, data_out, data_weight, rows = [], [], [], []
     frames = approach = 0
-    parts = [name for name, on in (("gear head", cfg.gear_head),
+    parts = [name for name, on in (("gear head", True),
                                    ("clearance features", cfg.clearance_features),
                                    ("position", cfg.position)) if on]
     made_of = f" ({', '.join(parts)})" if parts else ""
-    source = f"the approach planner with the aids of {teacher_path}" if cfg.planner \
-        else f"the hybrid {teacher_path}"
-    if plan is not None and plan != PlannerConfig():
-        funnel = plan.law_funnel(DockingConfig())
-        source += (f" (its law taking over within {funnel.reach:g} m behind the goal, "
-                   f"{funnel.lateral:g} m and {funnel.heading:g} rad of its axis)")
+    source = f"the approach planner with the aids of {teacher_path}"
     if cfg.settle:
         source += f" (its law creeping to the goal within {cfg.settle:g} m"
         source += f", retrying {cfg.retry:g} m back where the test cannot pass)" if cfg.retry \
@@ -549,14 +434,13 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
         batches = []
         for level in PAPER_LEVELS:
             base.occupancy = level
-            x, y, braked = rollout(env, actor, teacher, exponents, cfg.steps, iteration == 0,
+            x, y = rollout(env, actor, teacher, exponents, cfg.steps, iteration == 0,
                                    cfg.noise, generator)
-            batches.append((x, y, torch.where(braked, cfg.brake_weight, 1.0)))
+            batches.append((x, y, torch.ones(x.shape[0], device=x.device)))
             frames += x.shape[0]
         if iteration == 0:
             norm.freeze()  # the teacher's states set the student's input scale
-        label_approach = cfg.approach and (iteration == 0 or cfg.refresh_approach)
-        for level in PAPER_LEVELS if label_approach else ():
+        for level in PAPER_LEVELS if cfg.approach and iteration == 0 else ():
             base.occupancy = level
             x, y = approach_states(env, features, teacher, cfg.approach, cfg.approach_reach,
                                    generator)
@@ -568,12 +452,10 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig) -> Path:
             data_out.append(y)
             data_weight.append(weight)
         x, y, w = torch.cat(data_in), torch.cat(data_out), torch.cat(data_weight)
-        near = goal_cost(x) < GOAL_COST
-        w = torch.where(near, cfg.goal_weight * w, w)
         epochs = cfg.epochs if iteration == 0 else cfg.dagger_epochs
         loss = fit(actor, norm.to_observation_norm(), x, y, w, epochs, cfg, optim, generator)
         row = {"iteration": iteration, "frames": frames, "approach_states": approach,
-               "samples": x.shape[0], "goal_states": int(near.sum()), "loss": loss,
+               "samples": x.shape[0], "loss": loss,
                **check(actor, scfg, norm.state_dict(), cfg.yardstick, cfg.seed + 1000),
                "wall_s": time.perf_counter() - started}
         rows.append(row)

@@ -3,6 +3,7 @@
     python -m trainers.evaluate CHECKPOINT [--episodes 200] [--out DIR] [--seed 1]
                                            [--videos mp4|gif|none] [--aids NAME=VALUE ...]
                                            [--sample TORCH_SEED]
+    python -m trainers.evaluate --expert planner --out DIR [...]
 
 Runs the deterministic policy (the TanhNormal's mode; with ``--sample S``, actions drawn from
 the policy's distribution, torch seeded with S at each level) for ``--episodes``
@@ -19,34 +20,32 @@ one rollout video per level. ``--aids`` puts the checkpoint's policy under other
 aids than it was trained with (EVALUATION_AIDS: the brake and the docking law, which act
 around the network and leave its input and output as trained), e.g. a policy alone as the
 approach of a hybrid: ``--aids emergency_brake=true steer_clear=5 docking=true``.
+``--expert planner`` evaluates the hand-written agent (:mod:`torchpark.experts`: approach
+planner, docking law, brake) on the same lots, as a reference any learned agent can be set
+beside.
 """
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
 
 import torch
-from omegaconf import OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 from torch.utils._pytree import tree_map_only
+from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from torchpark import AidsConfig, ParkingConfig, ParkingEnv
 from torchpark.config import SEED_LIMIT, check_seed, is_integer
 from torchpark.curriculum import PAPER_LEVELS
+from torchpark.experts import ExpertConfig, PlannerExpert
 from torchpark.files import locked, write_csv, write_text
 from torchpark.media.recording import record_video
 from torchpark.runner import Episodes, run_episodes
-from trainers.checkpoint import load_checkpoint, load_weights
-from trainers.config import (
-    TrainConfig,
-    check_agent,
-    check_device,
-    check_flags,
-    override,
-    upgrade_saved,
-)
+from trainers.checkpoint import load_trained, load_weights
+from trainers.config import TrainConfig, check_agent, check_device, env_configs, override
 from trainers.utils import build_models, make_eval_env
 
 # Table 2 of the paper: success rate per curriculum phase (occupancy level).
@@ -64,22 +63,10 @@ COLUMNS = COMPOSITION + RESULTS
 # --episodes: lots per level, all stepped at once (a typo must not allocate the machine's
 # memory).
 MAX_EPISODES = 1_000_000
+# The hand-written agents --expert names (torchpark.experts), and their COMPOSITION policy.
+EXPERTS = {"planner": "the approach planner (torchpark.experts.PlannerExpert), hand-written"}
 EVALUATION_AIDS = ("emergency_brake", "steer_clear", "brake_margin", "docking",
                    "docking_reach", "docking_lateral", "docking_heading")
-
-
-def load(path: str) -> tuple[TrainConfig, dict]:
-    """The checkpoint's training config and contents (tensors on the CPU); ValueError naming
-    the path when it is not a torchpark checkpoint."""
-    checkpoint = load_checkpoint(path)
-    saved = upgrade_saved(checkpoint["config"])
-    try:
-        check_flags(saved)
-        merged = OmegaConf.merge(OmegaConf.structured(TrainConfig), saved)
-        return OmegaConf.to_object(merged), checkpoint
-    except (OmegaConfBaseException, ValueError) as err:
-        raise ValueError(f"checkpoint {str(path)!r} has an invalid config: "
-                         f"{str(err).splitlines()[0]}") from None
 
 
 def with_aids(cfg: TrainConfig, aids: list[str]) -> TrainConfig:
@@ -95,41 +82,62 @@ def with_aids(cfg: TrainConfig, aids: list[str]) -> TrainConfig:
     return cfg
 
 
-def composition(cfg: TrainConfig, checkpoint: dict, added: bool = False,
-                sampled: int | None = None) -> dict[str, str | int]:
-    """What the evaluated agent is made of: the COMPOSITION columns (``added``: its aids were
-    given at evaluation, not in training; ``sampled``: the torch seed its actions were drawn
-    with, None for the deterministic policy)."""
-    agent = cfg.agent
-    brake = "off" if not agent.emergency_brake else (
-        f"steers clear ({agent.steer_clear} angles)" if agent.steer_clear else "stops") + (
-        f", keeps {agent.brake_margin:g} m" if agent.emergency_brake and agent.brake_margin
-        else "")
-    law = (f"0-{agent.docking_reach:g} m behind the goal, +-{agent.docking_lateral:g} m, "
-           f"+-{agent.docking_heading:.3g} rad" if agent.docking else "off")
-    aids = [name for name, on in (("emergency brake", agent.emergency_brake),
-                                  ("docking law", agent.docking)) if on]
+def composition(aids: AidsConfig | None, policy: str, added: bool = False,
+                sampled: int | None = None, expert: bool = False) -> dict[str, str | int]:
+    """What the evaluated agent is made of: the COMPOSITION columns, from the aids it drives
+    with and a description of its ``policy`` (``added``: the aids were given at evaluation,
+    not in training; ``sampled``: the torch seed its actions were drawn with, None for the
+    deterministic policy; ``expert``: a hand-written agent, no learned part)."""
+    brake, law = (aids.brake, aids.docking) if aids is not None else (None, None)
+    brake_text = "off" if brake is None else (
+        f"steers clear ({brake.steer_clear} angles)" if brake.steer_clear else "stops") + (
+        f", keeps {brake.margin:g} m" if brake is not None and brake.margin else "")
+    law_text = (f"0-{law.reach:g} m behind the goal, +-{law.lateral:g} m, "
+                f"+-{law.heading:.3g} rad" if law is not None else "off")
+    parts = [name for name, on in (("emergency brake", brake is not None),
+                                   ("docking law", law is not None)) if on]
+    if expert:
+        agent = "hand-written: approach planner + " + " + ".join(parts)
+    elif parts:
+        agent = "hybrid: policy + " + " + ".join(parts) + (", added at evaluation" if added
+                                                           else "")
+    else:
+        agent = "policy alone"
     return {
-        "agent": ("hybrid: policy + " + " + ".join(aids) + (", added at evaluation" if added
-                                                              else "")) if aids
-        else "policy alone",
-        "brake": brake, "docking_law": law, "action_repeat": agent.action_repeat,
+        "agent": agent, "brake": brake_text, "docking_law": law_text,
+        "action_repeat": aids.action_repeat if aids is not None else 1,
         "actions": "the mode (deterministic)" if sampled is None
         else f"sampled (torch seed {sampled})",
-        "policy": checkpoint.get("trained_by")
-        or f"PPO ({cfg.logger.exp_name} preset run), {checkpoint['frames']:,} frames",
+        "policy": policy,
     }
 
 
-def evaluate_level(actor, checkpoint: dict, cfg: TrainConfig, occupancy: float,
-                   episodes: int, seed: int, sample: int | None = None) -> dict[str, float]:
-    """One episode in each of ``episodes`` lots (drawn from ``seed``) at ``occupancy``: the
-    row of the table. With ``sample``, the actions are drawn from the policy's distribution,
-    torch seeded with ``sample`` first (a level's row does not depend on the levels before)."""
-    env = make_eval_env(cfg, checkpoint["obs_norm"], occupancy, episodes, seed)
-    run = run_episodes(actor, env, cfg.env.max_steps, desc=f"occupancy {occupancy:.0%}",
-                       exploration=exploration(sample))
-    return level_row(run, occupancy)
+class Agent(NamedTuple):
+    """What the evaluator runs: ``make_env(occupancy, episodes, seed)`` builds ``episodes``
+    lots at ``occupancy`` with the agent's aids and input transforms, ``policy(env)`` is the
+    policy that drives such an env, ``max_steps`` its episodes' limit, ``made_of`` the
+    COMPOSITION columns."""
+
+    make_env: Callable[[float, int, int], TransformedEnv]
+    policy: Callable[[TransformedEnv], Callable]
+    max_steps: int
+    made_of: dict
+
+
+def run_level(agent: Agent, occupancy: float, episodes: int, seed: int,
+              sample: int | None = None) -> Episodes:
+    """One episode in each of ``episodes`` lots (drawn from ``seed``) at ``occupancy``. With
+    ``sample``, the actions are drawn from the policy's distribution, torch seeded with
+    ``sample`` first (a level does not depend on the levels before)."""
+    env = agent.make_env(occupancy, episodes, seed)
+    return run_episodes(agent.policy(env), env, agent.max_steps,
+                        desc=f"occupancy {occupancy:.0%}", exploration=exploration(sample))
+
+
+def evaluate_level(agent: Agent, occupancy: float, episodes: int, seed: int,
+                   sample: int | None = None) -> dict[str, float]:
+    """The row of the table at ``occupancy`` (:func:`run_level`)."""
+    return level_row(run_level(agent, occupancy, episodes, seed, sample), occupancy)
 
 
 def exploration(sample: int | None) -> ExplorationType:
@@ -164,16 +172,6 @@ def level_row(run: Episodes, occupancy: float) -> dict[str, float]:
     }
 
 
-class Agent(NamedTuple):
-    """A checkpoint's policy ready to run: its config (with the evaluation's aids and
-    device), contents (tensors on that device), actor, and what it is made of."""
-
-    cfg: TrainConfig
-    checkpoint: dict
-    actor: torch.nn.Module
-    made_of: dict
-
-
 def load_agent(path: str, device: str | None = None, aids: list[str] | None = None,
                sample: int | None = None) -> Agent:
     """The checkpoint's agent (see :func:`evaluate` for the arguments); ValueError naming
@@ -181,7 +179,7 @@ def load_agent(path: str, device: str | None = None, aids: list[str] | None = No
     if sample is not None and (not is_integer(sample) or not 0 <= sample < SEED_LIMIT):
         raise ValueError(f"sample must be None or a torch seed (an int in [0, 2**32)), got "
                          f"{sample!r}")
-    cfg, checkpoint = load(path)
+    cfg, checkpoint = load_trained(path)
     if aids:
         cfg = with_aids(cfg, aids)
     if device is not None:
@@ -190,15 +188,41 @@ def load_agent(path: str, device: str | None = None, aids: list[str] | None = No
     checkpoint = tree_map_only(torch.Tensor, lambda t: t.to(cfg.env.device), checkpoint)
     actor, _ = build_models(cfg)
     load_weights(actor, checkpoint["actor"], path, "actor")
-    return Agent(cfg, checkpoint, actor.to(cfg.env.device),
-                 composition(cfg, checkpoint, added=bool(aids), sampled=sample))
+    actor = actor.to(cfg.env.device)
+    policy = checkpoint.get("trained_by") or (
+        f"PPO ({cfg.logger.exp_name} preset run), {checkpoint['frames']:,} frames")
+    return Agent(
+        lambda occupancy, episodes, seed: make_eval_env(cfg, checkpoint["obs_norm"], occupancy,
+                                                        episodes, seed),
+        lambda env: actor, cfg.env.max_steps,
+        composition(env_configs(cfg, training=False)[1], policy, added=bool(aids),
+                    sampled=sample))
+
+
+def load_expert(name: str, device: str = "cpu") -> Agent:
+    """A hand-written agent (EXPERTS) on ``device``: the paper's env with the expert's aids,
+    its policy reading the env's state (:class:`torchpark.experts.PlannerExpert`)."""
+    if name not in EXPERTS:
+        raise ValueError(f"--expert must be one of {list(EXPERTS)}, got {name!r}")
+    check_device(device, "--device")
+    config = ExpertConfig()
+    parking = ParkingConfig()
+
+    def make_env(occupancy: float, episodes: int, seed: int) -> TransformedEnv:
+        base = ParkingEnv(episodes, device=device, seed=seed, config=parking,
+                          aids=config.aids())
+        base.occupancy = occupancy
+        return TransformedEnv(base)
+
+    return Agent(make_env, lambda env: PlannerExpert(env, config), parking.max_steps,
+                 composition(config.aids(), EXPERTS[name], expert=True))
 
 
 def evaluate_agent(agent: Agent, episodes: int, levels=PAPER_LEVELS, seed: int = 1,
                    sample: int | None = None) -> list[dict[str, float]]:
     """The table's rows, one per level (:func:`evaluate_level`)."""
-    return [{**agent.made_of, **evaluate_level(agent.actor, agent.checkpoint, agent.cfg, level,
-                                               episodes, seed, sample)} for level in levels]
+    return [{**agent.made_of, **evaluate_level(agent, level, episodes, seed, sample)}
+            for level in levels]
 
 
 def record_rollouts(agent: Agent, out: Path, video_format: str = "mp4",
@@ -208,9 +232,9 @@ def record_rollouts(agent: Agent, out: Path, video_format: str = "mp4",
     whole or not at all."""
     paths = []
     for level in levels:
-        env = make_eval_env(agent.cfg, agent.checkpoint["obs_norm"], level, 1, seed)
+        env = agent.make_env(level, 1, seed)
         with set_exploration_type(exploration(sample)):
-            paths.append(record_video(env, agent.actor,
+            paths.append(record_video(env, agent.policy(env),
                                       out / f"rollout_occ{round(100 * level)}.{video_format}"))
     return paths
 
@@ -258,7 +282,9 @@ def write_tables(rows: list[dict], out: Path) -> str:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m trainers.evaluate",
                                      description=__doc__.splitlines()[0])
-    parser.add_argument("checkpoint")
+    parser.add_argument("checkpoint", nargs="?", help="a torchpark checkpoint (or --expert)")
+    parser.add_argument("--expert", choices=sorted(EXPERTS), default=None,
+                        help="evaluate a hand-written agent (torchpark.experts) instead")
     parser.add_argument("--episodes", type=int, default=200, help="per occupancy level")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--out", default=None, help="directory (default: the checkpoint's)")
@@ -280,11 +306,18 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--sample must be a torch seed >= 0, got {args.sample}")
     if args.sample is not None and args.sample >= SEED_LIMIT:
         parser.error(f"--sample must be a torch seed < 2**32, got {args.sample}")
+    if (args.checkpoint is None) == (args.expert is None):
+        parser.error("give a checkpoint or --expert NAME (one of them)")
+    if args.expert is not None and (args.aids or args.sample is not None):
+        parser.error("--aids and --sample apply to a checkpoint's policy, not to --expert")
+    if args.expert is not None and args.out is None:
+        parser.error("--expert needs --out DIR (there is no checkpoint's folder to write to)")
     out = Path(args.out) if args.out else Path(args.checkpoint).parent
     videos = None if args.videos == "none" else args.videos
     try:
         check_seed(args.seed, "--seed")
-        agent = load_agent(args.checkpoint, args.device, args.aids, args.sample)
+        agent = load_expert(args.expert, args.device or "cpu") if args.expert is not None \
+            else load_agent(args.checkpoint, args.device, args.aids, args.sample)
         with locked(out, "--out"):
             outputs = [out / "evaluation.md", out / "evaluation.csv"]
             if videos is not None:

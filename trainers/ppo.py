@@ -25,14 +25,12 @@ from tqdm import tqdm
 
 from torchpark import OccupancyCurriculum
 from torchpark.files import locked, save_torch
-from trainers.anchor import AnchoredPPOLoss
 from trainers.checkpoint import EVALUATION_KEYS, RESUME_KEYS, load_checkpoint, load_weights
 from trainers.collection import RankCollection
-from trainers.config import PRESETS, TrainConfig, load_config, upgrade_saved
+from trainers.config import PRESETS, TrainConfig, load_config
 from trainers.distributed import (
     World,
     all_gather,
-    all_reduce_sum_,
     gather_episodes,
     gather_to_main,
     join,
@@ -117,9 +115,8 @@ def ppo_step(loss_fn: torch.nn.Module, optim: torch.optim.Optimizer, sample: Ten
     sample.set("advantage", standardise_advantage(sample["advantage"]))
     losses = loss_fn(sample)
     total = losses["loss_objective"] + losses["loss_critic"]
-    for extra in ("loss_entropy", "loss_anchor"):
-        if extra in losses.keys():
-            total = total + losses[extra]
+    if "loss_entropy" in losses.keys():
+        total = total + losses["loss_entropy"]
     total.backward()
     params = [p for group in optim.param_groups for p in group["params"]]
     torch.nn.utils.clip_grad_norm_(params, max_grad_norm)
@@ -187,7 +184,7 @@ def config_differences(saved: dict, cfg: TrainConfig, section: str, free: tuple 
     was written) is its default, which does what the code did before the field existed."""
     now = dataclasses.asdict(getattr(cfg, section))
     old = {**dataclasses.asdict(getattr(TrainConfig(), section)),
-           **upgrade_saved(saved).get(section, {})}
+           **saved.get(section, {})}
     return ", ".join(f"{section}.{k}={old.get(k)!r} in the checkpoint, {now.get(k)!r} now"
                      for k in sorted(set(old) | set(now))
                      if old.get(k) != now.get(k) and f"{section}.{k}" not in free)
@@ -204,13 +201,6 @@ def prepare(cfg: TrainConfig, resume: str | None, overwrite: bool, init: str | N
     if resume is not None and init is not None:
         raise ValueError("--resume continues a run and --init starts one: pass one of them")
     stale = check_log_dir(run_dir(cfg), resume, overwrite, reads=(resume, init))
-    if cfg.loss.anchor_coef > 0 and resume is None and init is None:
-        raise ValueError(f"loss.anchor_coef={cfg.loss.anchor_coef} holds the actor to the one "
-                         f"the run starts from: pass --init CHECKPOINT")
-    if cfg.loss.anchor_coef > 0 and resume is not None \
-            and "anchor" not in load_checkpoint(resume, "cpu", RESUME_KEYS):
-        raise ValueError(f"checkpoint {resume!r} was trained without loss.anchor_coef: it "
-                         f"has no anchor to resume with")
     for path, keys, sections, free in ((resume, RESUME_KEYS, _MODEL_SECTIONS, ()),
                                        (init, EVALUATION_KEYS, _INIT_SECTIONS, _INIT_FREE)):
         if path is None:
@@ -288,23 +278,10 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
     actor, critic = build_models(cfg)
     actor, critic = actor.to(device), critic.to(device)
     # The advantages are standardised over each minibatch of all ranks by ppo_step.
-    loss_options = dict(
-        clip_epsilon=cfg.loss.clip_epsilon, entropy_bonus=cfg.loss.entropy_coef > 0,
-        entropy_coeff=cfg.loss.entropy_coef, critic_coeff=cfg.loss.critic_coef,
-        loss_critic_type="l2", normalize_advantage=False,
-        max_importance_ratio=cfg.loss.max_importance_ratio,
-    )
-    anchor = None
-    if cfg.loss.anchor_coef > 0:  # the actor the run started from (prepare checked there is one)
-        anchor = build_models(cfg)[0].to(device)
-        if checkpoint is not None:
-            load_weights(anchor, checkpoint["anchor"], resume, "anchor")
-        else:
-            load_weights(anchor, start["actor"], init, "actor")
-        loss_module = AnchoredPPOLoss(actor, critic, anchor, cfg.loss.anchor_coef,
-                                      cfg.loss.anchor_reach, **loss_options)
-    else:
-        loss_module = ClipPPOLoss(actor, critic, **loss_options)
+    loss_module = ClipPPOLoss(
+        actor, critic, clip_epsilon=cfg.loss.clip_epsilon,
+        entropy_bonus=cfg.loss.entropy_coef > 0, entropy_coeff=cfg.loss.entropy_coef,
+        critic_coeff=cfg.loss.critic_coef, loss_critic_type="l2", normalize_advantage=False)
     advantage = GAE(gamma=cfg.loss.gamma, lmbda=cfg.loss.gae_lambda, value_network=critic,
                     average_gae=False)
     optim = torch.optim.Adam(loss_module.parameters(), lr=cfg.optim.lr)
@@ -319,8 +296,7 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
     if world.parallel:  # each rank's own stream for the policy's samples, the minibatches
         torch.manual_seed(rank_seed(cfg.seed, world.rank, world.size))
 
-    reduce = all_reduce_sum_ if world.parallel else None
-    collection = RankCollection(cfg, actor, world, remaining, reduce)
+    collection = RankCollection(cfg, actor, world, remaining)
     env, collector = collection.env, collection.collector
     exact = rank_states(checkpoint, cfg) if checkpoint is not None else None
     if checkpoint is None:
@@ -360,8 +336,6 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
                  "obs_norm": env.transform[-1].state_dict()}
         if states is not None:
             state.update(states[0] if len(states) == 1 else {"ranks": states})
-        if anchor is not None:
-            state["anchor"] = anchor.state_dict()
         if started_from is not None:
             state["started_from"] = started_from
             state["trained_by"] = (f"PPO ({cfg.logger.exp_name} run, {frames:,} frames) "
@@ -401,7 +375,6 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
                     "loss/objective": losses["loss_objective"].item(),
                     "loss/critic": losses["loss_critic"].item(),
                     "loss/kl_approx": losses["kl_approx"].item(),
-                    **({"loss/anchor": losses["loss_anchor"].item()} if anchor is not None else {}),
                     "loss/clip_fraction": losses["clip_fraction"].item(),
                     "time/collect_fps": batch_frames / collect_time,
                     "time/train_fps": batch_frames / train_time,

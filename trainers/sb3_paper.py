@@ -7,9 +7,10 @@ the occupancy raised every 2M frames, 12M frames; then the per-level evaluation.
     python -m trainers.sb3_paper --out results/paper --resume        # continue, exactly
     python -m trainers.sb3_paper --out results/paper --evaluate      # the three-threshold table
 
-Why SB3 and not ``trainers.ppo --preset paper``: it is what the paper ran, and on this CPU
-it is faster (single thread, compiled step: 724 frames/s against 244 for the torchrl
-preset's one-env collector). The env is the paper's: no aid, uniform starts, C < 4e-4.
+This is the one way to run the paper's recipe here (``trainers.ppo`` has no ``paper``
+preset): it is what the paper ran, it made ``results/paper/``, and on this CPU it is faster
+than torchrl's one-env collector (single thread, compiled step: 724 frames/s against 244).
+The env is the paper's: no aid, uniform starts, C < 4e-4.
 
 A checkpoint (``--checkpoint-every`` frames, at rollout boundaries) is one file,
 ``state.pt``, written whole or not at all (``torchpark.files``): the policy's weights and
@@ -36,13 +37,19 @@ from stable_baselines3.common.callbacks import BaseCallback
 from torchrl.envs import TransformedEnv
 
 import torchpark  # noqa: F401  (registers torchpark/Parking-v0)
-from torchpark import ParkingEnv
+from torchpark import ParkingConfig, ParkingEnv
 from torchpark.config import check_seed
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.files import locked, save_torch, write_file
-from torchpark.runner import run_episodes
 from trainers.checkpoint import load_checkpoint, load_weights
-from trainers.evaluate import MAX_EPISODES, PAPER_SUCCESS, level_row, to_markdown, write_tables
+from trainers.evaluate import (
+    MAX_EPISODES,
+    Agent,
+    composition,
+    evaluate_agent,
+    to_markdown,
+    write_tables,
+)
 
 MODEL, STATE = "model.zip", "state.pt"
 
@@ -177,25 +184,24 @@ def evaluate(out: Path, episodes: int, seed: int) -> list[dict]:
     state = load_state(out)
     model = new_model(0, compile_step=False)
     load_policy(model, state, out)
-    made_of = {"agent": "policy alone", "brake": "off", "docking_law": "off",
-               "action_repeat": 1, "actions": "the mode (deterministic)",
-               "policy": f"PPO (Stable-Baselines3 defaults, the paper's recipe), "
-                         f"{model.num_timesteps:,} frames"}
-    rows = []
-    for level in PAPER_LEVELS:
+    policy = (f"PPO (Stable-Baselines3 defaults, the paper's recipe), "
+              f"{model.num_timesteps:,} frames")
+
+    def make_env(occupancy: float, episodes: int, seed: int) -> TransformedEnv:
         env = ParkingEnv(episodes, seed=seed)
-        env.occupancy = level
+        env.occupancy = occupancy
+        return TransformedEnv(env)
+
+    def drive(env: TransformedEnv):
         high = env.action_spec.space.high[0]  # the Gymnasium env's [-1, 1] actions, scaled
 
-        def policy(td, env=env, high=high):
+        def policy(td):
             action, _ = model.predict(td["observation"].numpy(), deterministic=True)
             return td.set("action", torch.as_tensor(action, dtype=torch.float32) * high)
+        return policy
 
-        run = run_episodes(policy, TransformedEnv(env), env.config.max_steps,
-                           desc=f"occupancy {level:.0%}")
-        rows.append({**made_of, **level_row(run, level),
-                     "paper_success": PAPER_SUCCESS[level]})
-    return rows
+    agent = Agent(make_env, drive, ParkingConfig().max_steps, composition(None, policy))
+    return evaluate_agent(agent, episodes, seed=seed)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -9,7 +9,6 @@ less noise where precision pays (the last millimetres of parking)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule
@@ -36,8 +35,6 @@ from torchpark import (
     OccupancyCurriculum,
     ParkingEnv,
     PowerActionMap,
-    RewardConfig,
-    SuccessCurriculum,
 )
 from trainers.config import ModelConfig, TrainConfig, env_configs
 
@@ -124,20 +121,18 @@ def make_base_env(cfg: TrainConfig, training: bool, num_envs: int | None = None,
 
 
 def make_env(cfg: TrainConfig, num_envs: int | None = None, seed: int | None = None,
-             replicas: int = 1, reduce: Callable[[torch.Tensor], object] | None = None
-             ) -> TransformedEnv:
+             replicas: int = 1) -> TransformedEnv:
     """The training env: ParkingEnv, episode statistics, the curriculum, observation norm
     (written to ``NORMALISED``).
 
     One of ``replicas`` copies stepping in lockstep (data-parallel ranks x collector workers,
-    ``num_envs`` lots each): the curricula count the frames of all of them, ``reduce`` sums
-    the success curriculum's counts over them, and the normaliser's moving averages forget
+    ``num_envs`` lots each): the curriculum counts the frames of all of them, and the
+    normaliser's moving averages forget
     at the rate of the run's global batch (see :func:`policy_input`)."""
     base = make_base_env(cfg, training=True, num_envs=num_envs, seed=seed)
     return TransformedEnv(base, Compose(
         InitTracker(), StepCounter(), RewardSum(),
         OccupancyCurriculum(cfg.curriculum.levels, cfg.curriculum.frames_per_level, replicas),
-        *success_curriculum(cfg, replicas, reduce),
         # After RewardSum: the logged episode reward stays in the paper's units.
         RewardScaling(loc=0.0, scale=cfg.loss.reward_scale),
         *policy_input(cfg, base, replicas),
@@ -157,18 +152,6 @@ def make_eval_env(cfg: TrainConfig, obs_norm: dict, occupancy: float, num_envs: 
     norm.load_state_dict(obs_norm)
     norm.freeze()
     return env
-
-
-def success_curriculum(cfg: TrainConfig, replicas: int = 1,
-                       reduce: Callable[[torch.Tensor], object] | None = None
-                       ) -> list[Transform]:
-    """The success-threshold curriculum, when ``curriculum.success_start`` asks for one."""
-    c = cfg.curriculum
-    if c.success_start is None:
-        return []
-    return [SuccessCurriculum(c.success_start, RewardConfig().success_threshold,
-                              c.success_factor, c.success_target, c.success_window,
-                              replicas, reduce)]
 
 
 # VecNormV2's default: the weight of the past in its moving averages, per observation.

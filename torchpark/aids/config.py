@@ -5,7 +5,6 @@ is the paper's task. Units: metres, seconds, radians.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -124,76 +123,6 @@ class DockingConfig:
                 "DockingConfig.settle", f"in [0, abort = {self.abort}]", self.settle)
         require(math.isfinite(self.retry) and 0.0 <= self.retry <= self.run_in,
                 "DockingConfig.retry", f"in [0, run_in = {self.run_in}]", self.retry)
-
-
-@dataclass(frozen=True)
-class PlannerConfig:
-    """The approach planner (:mod:`torchpark.aids.planner`): a cost-to-go over a grid of
-    rear-axle poses ``cell`` m and 2 pi / ``headings`` rad apart, by arcs of ``step`` m at
-    ``steers`` steering angles, forwards and reversing (``reverse_cost`` per metre). On the
-    grid the car box, grown by ``clearance`` m, keeps off the walls, and a path costs
-    ``slot_cost`` times as much per metre where it is on a slot but the goal's (inf: it
-    never is; finite: a car standing on one drives off it), ``band_cost`` times as much
-    within ``margin`` m of a slot or wall. Its target: ``reach_min`` to ``reach`` m back along
-    the slot axis from the goal, within ``lateral`` m and ``heading`` rad of it. It drives at
-    ``speed`` m/s, looking ahead two arcs of ``control_step`` m; a gear change costs
-    ``switch_cost`` m; reading the cost between cells, one no path leaves counts
-    ``blocked_cost`` m dearer than the others. The docking law takes over from it within
-    ``law_reach`` m behind the goal, ``law_lateral`` m of the slot axis and ``law_heading``
-    rad of the goal's heading (:meth:`law_funnel`; None: the target's bound); a funnel
-    wider than the target hands over to the law where the planner's arcs would circle a
-    slot off a narrow lane (docs/experiments.md)."""
-
-    cell: float = 0.5  # m
-    headings: int = 64
-    step: float = 0.75  # m
-    control_step: float = 0.375  # m
-    steers: int = 5
-    reverse_cost: float = 1.5
-    switch_cost: float = 2.0  # m
-    clearance: float = 0.0  # m
-    margin: float = 0.2  # m
-    band_cost: float = 5.0
-    slot_cost: float = 1000.0
-    blocked_cost: float = 10.0  # m
-    speed: float = 2.0  # m/s
-    reach_min: float = 3.0  # m
-    reach: float = 7.0  # m
-    lateral: float = 0.5  # m
-    heading: float = 0.25  # rad
-    law_reach: float | None = None  # m
-    law_lateral: float | None = None  # m
-    law_heading: float | None = None  # rad
-
-    def __post_init__(self) -> None:
-        check_types(self)
-        for name in ("cell", "step", "control_step", "speed", "reach", "lateral", "heading"):
-            positive(f"PlannerConfig.{name}", getattr(self, name))
-        for name, high in (("reach", math.inf), ("lateral", math.inf), ("heading", math.pi)):
-            value, low = getattr(self, f"law_{name}"), getattr(self, name)
-            require(value is None or (low <= value <= high and math.isfinite(value)),
-                    f"PlannerConfig.law_{name}", f"None or finite, in [{name} = {low:g}, "
-                    f"{high:g}] (the funnel holds the target)", value)
-        require(8 <= self.headings <= 1024, "PlannerConfig.headings", "an int in [8, 1024]",
-                self.headings)
-        require(2 <= self.steers <= 64, "PlannerConfig.steers", "an int in [2, 64]",
-                self.steers)
-        for name in ("reverse_cost", "switch_cost", "clearance", "margin", "band_cost",
-                     "blocked_cost", "reach_min"):
-            value = getattr(self, name)
-            require(math.isfinite(value) and value >= 0, f"PlannerConfig.{name}",
-                    "finite, >= 0", value)
-        require(self.slot_cost >= 1.0, "PlannerConfig.slot_cost", ">= 1 (inf: never on a slot)",
-                self.slot_cost)
-        require(self.reach_min < self.reach, "PlannerConfig.reach_min",
-                f"< reach = {self.reach}", self.reach_min)
-
-    def law_funnel(self, law: DockingConfig) -> DockingConfig:
-        """``law`` with the funnel it takes over from the planner in: the ``law_*`` bounds,
-        the target's where None."""
-        return dataclasses.replace(law, **{
-            name: getattr(self, name) if getattr(self, f"law_{name}") is None
-            else getattr(self, f"law_{name}") for name in ("reach", "lateral", "heading")})
 
 
 @dataclass(frozen=True)

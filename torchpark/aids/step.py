@@ -1,9 +1,13 @@
-"""The aided step and reset: the paper's (:mod:`torchpark.sim.step`) with the configured aids
-composed around the same commit of a state. ``ParkingEnv`` uses these when it is given an
-:class:`~torchpark.aids.config.AidsConfig`, the paper's functions otherwise."""
+"""The agent's step and reset: the paper's (:mod:`torchpark.sim.step`) with the configured aids
+composed around the same commit of a state. The env holds one state whatever the aids, an
+:class:`AidedState` (the paper's state and the aids' beside it, inert when they are off, as
+Brax keeps a wrapper's state in ``state.info``); :func:`agent_step` picks the paper's own
+step, lifted onto it, when there is no aid."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from functools import partial
 from typing import NamedTuple
 
 import torch
@@ -17,7 +21,15 @@ from torchpark.config import ParkingConfig
 from torchpark.sim.episodes import LotDraw
 from torchpark.sim.observation import observe
 from torchpark.sim.records import replace
-from torchpark.sim.step import ParkingState, StepResult, commit, move, new_lots
+from torchpark.sim.step import (
+    ParkingState,
+    StepResult,
+    commit,
+    move,
+    new_episodes,
+    new_lots,
+    parking_step,
+)
 from torchpark.sim.vehicle import clamp_action
 from torchpark.sim.world import World
 
@@ -102,14 +114,35 @@ def aided_step(state: AidedState, action: Tensor, world: World, steer_angles: Te
     return AidedState(sim, control.aids), out, action.isfinite().all()
 
 
+def paper_step(state: AidedState, action: Tensor, world: World, cfg: ParkingConfig
+               ) -> tuple[AidedState, StepResult, Tensor]:
+    """The paper's step (:func:`~torchpark.sim.step.parking_step`) on the agent's state: the
+    aids' state passes through untouched."""
+    sim, out, finite = parking_step(state.sim, action, world, cfg)
+    return AidedState(sim, state.aids), out, finite
+
+
+def agent_step(world: World, steer_angles: Tensor, cfg: ParkingConfig,
+               aids: AidsConfig | None) -> Callable[[AidedState, Tensor],
+                                                    tuple[AidedState, StepResult, Tensor]]:
+    """The step of dt an env with ``aids`` runs, ``(state, action) -> (state, out,
+    finite)``: :func:`aided_step`, or without aids the paper's own (:func:`paper_step`)."""
+    if aids is None:
+        return partial(paper_step, world=world, cfg=cfg)
+    return partial(aided_step, world=world, steer_angles=steer_angles, cfg=cfg, aids=aids)
+
+
 def aided_new_episodes(lots: LotDraw, near: NearDraw | None, world: World, cfg: ParkingConfig
                        ) -> tuple[AidedState, Tensor, Tensor]:
     """The paper's reset of B rows (:func:`~torchpark.sim.step.new_episodes`) with the aids'
     state cleared, and with ``near`` (near-goal starts, B rows) preferred to the uniform
     start where it asks."""
-    fresh = new_lots(lots, world, cfg)
-    if near is not None:
+    if near is None:
+        fresh, observation, cost = new_episodes(lots, world, cfg)
+    else:
+        fresh = new_lots(lots, world, cfg)
         fresh = replace(fresh, pose=near_start(fresh.pose, near, fresh.goal, fresh.present,
                                                world, cfg))
+        observation, cost = observe(fresh, world, cfg)
     return (AidedState(fresh, AidState.zeros(fresh.pose.shape[0], fresh.pose.device)),
-            *observe(fresh, world, cfg))
+            observation, cost)

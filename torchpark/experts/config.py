@@ -1,0 +1,105 @@
+"""Configuration of the hand-written expert: the approach planner (:mod:`torchpark.experts.
+planner`) and the agent it drives with (:class:`ExpertConfig`). Units: metres, seconds,
+radians."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig
+from torchpark.config import check_types, positive, require
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """The approach planner (:mod:`torchpark.experts.planner`): a cost-to-go over a grid of
+    rear-axle poses ``cell`` m and 2 pi / ``headings`` rad apart, by arcs of ``step`` m at
+    ``steers`` steering angles, forwards and reversing (``reverse_cost`` per metre). On the
+    grid the car box, grown by ``clearance`` m, keeps off the walls, and a path costs
+    ``slot_cost`` times as much per metre where it is on a slot but the goal's (inf: it
+    never is; finite: a car standing on one drives off it), ``band_cost`` times as much
+    within ``margin`` m of a slot or wall. Its target: ``reach_min`` to ``reach`` m back along
+    the slot axis from the goal, within ``lateral`` m and ``heading`` rad of it. It drives at
+    ``speed`` m/s, looking ahead two arcs of ``control_step`` m; a gear change costs
+    ``switch_cost`` m; reading the cost between cells, one no path leaves counts
+    ``blocked_cost`` m dearer than the others. The docking law takes over from it within
+    ``law_reach`` m behind the goal, ``law_lateral`` m of the slot axis and ``law_heading``
+    rad of the goal's heading (:meth:`law_funnel`; None: the target's bound); a funnel
+    wider than the target hands over to the law where the planner's arcs would circle a
+    slot off a narrow lane (research/experiments.md)."""
+
+    cell: float = 0.5  # m
+    headings: int = 64
+    step: float = 0.75  # m
+    control_step: float = 0.375  # m
+    steers: int = 5
+    reverse_cost: float = 1.5
+    switch_cost: float = 2.0  # m
+    clearance: float = 0.0  # m
+    margin: float = 0.2  # m
+    band_cost: float = 5.0
+    slot_cost: float = 1000.0
+    blocked_cost: float = 10.0  # m
+    speed: float = 2.0  # m/s
+    reach_min: float = 3.0  # m
+    reach: float = 7.0  # m
+    lateral: float = 0.5  # m
+    heading: float = 0.25  # rad
+    law_reach: float | None = None  # m
+    law_lateral: float | None = None  # m
+    law_heading: float | None = None  # rad
+
+    def __post_init__(self) -> None:
+        check_types(self)
+        for name in ("cell", "step", "control_step", "speed", "reach", "lateral", "heading"):
+            positive(f"PlannerConfig.{name}", getattr(self, name))
+        for name, high in (("reach", math.inf), ("lateral", math.inf), ("heading", math.pi)):
+            value, low = getattr(self, f"law_{name}"), getattr(self, name)
+            require(value is None or (low <= value <= high and math.isfinite(value)),
+                    f"PlannerConfig.law_{name}", f"None or finite, in [{name} = {low:g}, "
+                    f"{high:g}] (the funnel holds the target)", value)
+        require(8 <= self.headings <= 1024, "PlannerConfig.headings", "an int in [8, 1024]",
+                self.headings)
+        require(2 <= self.steers <= 64, "PlannerConfig.steers", "an int in [2, 64]",
+                self.steers)
+        for name in ("reverse_cost", "switch_cost", "clearance", "margin", "band_cost",
+                     "blocked_cost", "reach_min"):
+            value = getattr(self, name)
+            require(math.isfinite(value) and value >= 0, f"PlannerConfig.{name}",
+                    "finite, >= 0", value)
+        require(self.slot_cost >= 1.0, "PlannerConfig.slot_cost", ">= 1 (inf: never on a slot)",
+                self.slot_cost)
+        require(self.reach_min < self.reach, "PlannerConfig.reach_min",
+                f"< reach = {self.reach}", self.reach_min)
+
+    def law_funnel(self, law: DockingConfig) -> DockingConfig:
+        """``law`` with the funnel it takes over from the planner in: the ``law_*`` bounds,
+        the target's where None."""
+        return dataclasses.replace(law, **{
+            name: getattr(self, name) if getattr(self, f"law_{name}") is None
+            else getattr(self, f"law_{name}") for name in ("reach", "lateral", "heading")})
+
+
+@dataclass(frozen=True)
+class ExpertConfig:
+    """The hand-written agent (``results/planner/``): the approach planner drives from the
+    paper's uniform start until the docking law's funnel (``planner.law_*``, here 8 m behind
+    the goal, 2 m of its axis and 1 rad of its heading: wider than the planner's target, so
+    that the law turns in the cars the planner's arcs would circle off a narrow lane), the
+    docking law (``docking``, its funnel replaced by the planner's) parks, and the emergency
+    brake (``brake``, steering clear at 5 angles) stops or steers a move that would touch.
+    """
+
+    planner: PlannerConfig = field(default_factory=lambda: PlannerConfig(
+        law_reach=8.0, law_lateral=2.0, law_heading=1.0))
+    docking: DockingConfig = field(default_factory=DockingConfig)
+    brake: BrakeConfig | None = field(default_factory=lambda: BrakeConfig(steer_clear=5))
+
+    def __post_init__(self) -> None:
+        check_types(self)
+
+    def aids(self) -> AidsConfig:
+        """The aids the expert's env is built with: its docking law and brake."""
+        return AidsConfig(docking=self.planner.law_funnel(self.docking), brake=self.brake)
