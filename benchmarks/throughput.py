@@ -141,7 +141,7 @@ def collector_frames(num_envs: int, device: str, mode: str, args):
         raise ValueError("the fast preset compiles without CUDA graphs")
     # The preset's batch (1,024 envs x 32 actions) is no multiple of N x its action repeat
     # past N = 32,768: the batch here is N x --horizon actions.
-    frames = PRESETS["fast"]().agent.action_repeat * args.horizon * num_envs
+    frames = PRESETS["fast"]().agent.aids.action_repeat * args.horizon * num_envs
     cfg = load_config("fast", [f"env.num_envs={num_envs}", f"env.device={device}",
                                f"env.compile_step={mode == 'compiled'}",
                                f"curriculum.levels=[{args.occupancy}]",

@@ -85,12 +85,12 @@ def test_the_committed_checkpoint_differs_from_its_preset_only_where_a_run_chang
     """The committed ``fast`` checkpoint against the preset it was trained with differs in
     nothing; a run that changes a field is told so by name."""
     from trainers.config import load_config
-    from trainers.ppo import _MODEL_SECTIONS, config_differences
+    from trainers.runs import MODEL_SECTIONS, config_differences
 
     saved = load_checkpoint(COMMITTED)["config"]
     fast = load_config("fast")
-    assert [config_differences(saved, fast, section) for section in _MODEL_SECTIONS] \
-        == [""] * len(_MODEL_SECTIONS)
-    harsher = load_config("fast", ["train.collision_penalty=-1000.0"])
-    assert config_differences(saved, harsher, "train") \
-        == "train.collision_penalty=-200.0 in the checkpoint, -1000.0 now"
+    assert [config_differences(saved, fast, section) for section in MODEL_SECTIONS] \
+        == [""] * len(MODEL_SECTIONS)
+    harsher = load_config("fast", ["env.task.reward.collision_penalty=-1000.0"])
+    assert config_differences(saved, harsher, "env") \
+        == "env.task.reward.collision_penalty=-200.0 in the checkpoint, -1000.0 now"

@@ -46,9 +46,9 @@ from trainers.utils import (
 )
 
 COARSE_PLAN = PlannerConfig(cell=1.0, headings=32, step=1.5)  # builds in seconds
-HYBRID = ["agent.emergency_brake=true", "agent.steer_clear=5", "agent.docking=true",
+HYBRID = ["agent.aids.brake.steer_clear=5", "agent.aids.docking={}",
           "agent.observe_brake=true", "agent.goal_features=true",
-          "agent.action_exponents=[1.0,1.0]", "env.max_steps=200"]
+          "agent.action_exponents=[1.0,1.0]", "env.task.max_steps=200"]
 
 
 def write_checkpoint(path, overrides: list[str]) -> str:
@@ -214,8 +214,8 @@ def test_a_run_writes_a_policy_alone_the_evaluator_reads(teacher_path, tmp_path,
             "--approach", "16"]
     main(args)
     cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
-    assert not (cfg.agent.emergency_brake or cfg.agent.docking)
-    assert cfg.agent.action_repeat == 1 and cfg.agent.action_exponents == [3.0, 1.0]
+    assert cfg.agent.aids.brake is None and cfg.agent.aids.docking is None
+    assert cfg.agent.aids.action_repeat == 1 and cfg.agent.action_exponents == [3.0, 1.0]
     assert cfg.agent.gear_head
     made_of = load_agent(str(out / "checkpoint_final.pt")).made_of
     assert made_of["agent"] == "policy alone"
@@ -253,7 +253,7 @@ def test_a_student_with_the_clearance_features_and_position_reads_them_everywher
           "--clearance-features", "--position"])
     cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
     assert cfg.agent.clearance_features and cfg.agent.goal_features
-    assert cfg.agent.observe_position
+    assert cfg.agent.aids.observe_position
     assert checkpoint["trained_by"].startswith(
         "distilled (gear head, clearance features, position) from")
     loc = checkpoint["obs_norm"]["_extra_state"]["loc.-|-.observation_policy"]

@@ -10,6 +10,7 @@ import subprocess
 import sys
 import textwrap
 import time
+import typing
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -260,8 +261,7 @@ def test_evaluation_puts_a_policy_under_other_aids(smoke_run, tmp_path):
     """--aids: the smoke run's policy alone evaluated as the approach of a hybrid (brake +
     docking law), said so in the table; the same lots as without them."""
     _, final = smoke_run
-    aids = ["emergency_brake=true", "steer_clear=5", "docking=true", "docking_lateral=2.0",
-            "docking_heading=1.0"]
+    aids = ["brake.steer_clear=5", "docking.lateral=2.0", "docking.heading=1.0"]
     plain = evaluate(str(final), episodes=6, levels=(0.9,))[0]
     aided = evaluate(str(final), episodes=6, levels=(0.9,), aids=aids)[0]
     assert (plain["agent"], plain["brake"], plain["docking_law"]) == (
@@ -299,14 +299,14 @@ def test_a_sampled_evaluation_is_seeded_and_says_so(smoke_run, tmp_path, capsys)
 
 
 @pytest.mark.parametrize(("aids", "message"), [
-    (["observe_brake=true"], "--aids takes NAME=VALUE with NAME one of emergency_brake"),
+    (["observe_brake=true"], "--aids takes NAME=VALUE with NAME one of brake, docking"),
+    (["action_repeat=5"], "--aids takes NAME=VALUE with NAME one of brake, docking"),
     (["docking"], "--aids takes NAME=VALUE"),
-    (["steer_clear=5"], "agent.steer_clear must be 0 without agent.emergency_brake"),
-    (["steer_clear=True", "emergency_brake=true"], "agent.steer_clear: Value 'True'"),
-    (["docking_lateral=2.0"], "agent.docking_lateral must be 4 (its default) without "
-                              "agent.docking"),
-    (["docking=true", "docking_reach=nan"], "DockingConfig.reach must be a finite number > 0"),
-    (["docking=true", "docking_heading=-1"], "DockingConfig.heading"),
+    (["brake.steer_clear=1"], "BrakeConfig.steer_clear must be 0 or an int in [2, 1024]"),
+    (["brake.steer_clear=True"], "agent.aids.brake.steer_clear: Value 'True'"),
+    (["brake.stear_clear=5"], "Key 'stear_clear' not in 'BrakeConfig'"),
+    (["docking.reach=nan"], "DockingConfig.reach must be a finite number > 0"),
+    (["docking.heading=-1"], "DockingConfig.heading"),
 ])
 def test_evaluation_refuses_bad_aids_by_name(smoke_run, tmp_path, capsys, aids, message):
     _, final = smoke_run
@@ -323,14 +323,14 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     threshold, the docking layer, the brake steering clear with a margin and the policy
     seeing it, the gear head."""
     cfg = load_config("smoke", [
-        f"logger.log_dir={tmp_path}", "agent.action_repeat=2",
-        "agent.action_exponents=[3.0,1.0]", "train.near_goal_starts=0.5",
-        "agent.emergency_brake=true", "agent.goal_features=true",
+        f"logger.log_dir={tmp_path}", "agent.aids.action_repeat=2",
+        "agent.action_exponents=[3.0,1.0]", "agent.aids.near_goal_starts.probability=0.5",
+        "agent.goal_features=true",
         "model.state_dependent_std=true", "collector.frames_per_batch=2048",
-        "collector.total_frames=4096", "train.success_threshold=1000.0",
-        "train.brake_penalty=-1.0", "agent.docking=true",
-        "agent.docking_lateral=1.0", "agent.steer_clear=5", "agent.observe_brake=true",
-        "agent.gear_head=true", "agent.brake_margin=0.2",
+        "collector.total_frames=4096", "env.task.reward.success_threshold=1000.0",
+        "agent.aids.brake.penalty=-1.0", "agent.aids.docking.lateral=1.0",
+        "agent.aids.brake.steer_clear=5", "agent.observe_brake=true",
+        "agent.gear_head=true", "agent.aids.brake.margin=0.2",
     ])
     assert env_configs(cfg, True)[1].brake.margin == env_configs(cfg, False)[1].brake.margin \
         == 0.2
@@ -344,23 +344,24 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     assert events.Scalars("curriculum/success_threshold")[-1].value == 1000.0
     rows = evaluate(str(final), episodes=4, levels=(0.9,))
     assert rows[0]["collision"] == 0.0  # the brake stops every colliding step
-    assert 0 < rows[0]["mean_length"] <= cfg.env.max_steps
+    assert 0 < rows[0]["mean_length"] <= cfg.env.task.max_steps
     assert 0.0 <= rows[0]["docked"] <= 1.0
     assert rows[0]["brake"] == "steers clear (5 angles), keeps 0.2 m"
 
 
 def test_training_aids_stay_out_of_the_evaluation_env():
-    cfg = load_config("smoke", ["train.success_threshold=0.1", "train.brake_penalty=-1.0",
-                                "train.collision_penalty=-1000.0",
-                                "train.near_goal_starts=0.5", "agent.emergency_brake=true",
-                                "agent.action_repeat=2", "agent.docking=true",
-                                "agent.docking_lateral=0.3", "agent.steer_clear=5"])
+    cfg = load_config("smoke", ["env.task.reward.success_threshold=0.1",
+                                "agent.aids.brake.penalty=-1.0",
+                                "env.task.reward.collision_penalty=-1000.0",
+                                "agent.aids.near_goal_starts.probability=0.5",
+                                "agent.aids.action_repeat=2", "agent.aids.docking.lateral=0.3",
+                                "agent.aids.brake.steer_clear=5"])
     (training, train_aids), (evaluation, eval_aids) = env_configs(cfg, True), env_configs(cfg,
                                                                                           False)
     assert (training.reward.success_threshold, training.reward.collision_penalty,
             train_aids.brake.penalty, train_aids.near_goal_starts.probability) \
         == (0.1, -1000.0, -1.0, 0.5)
-    assert evaluation == ParkingConfig(max_steps=cfg.env.max_steps)  # the paper's task
+    assert evaluation == ParkingConfig(max_steps=cfg.env.task.max_steps)  # the paper's task
     assert eval_aids.near_goal_starts is None and eval_aids.brake.penalty == 0.0
     for aids in (train_aids, eval_aids):  # what the agent is stays
         assert aids.action_repeat == 2 and aids.brake.steer_clear == 5
@@ -370,7 +371,7 @@ def test_training_aids_stay_out_of_the_evaluation_env():
 
 
 def test_observe_brake_appends_the_brake_flag_to_the_policy_input():
-    cfg = load_config("smoke", ["agent.emergency_brake=true", "agent.goal_features=true",
+    cfg = load_config("smoke", ["agent.aids.brake={}", "agent.goal_features=true",
                                 "agent.observe_brake=true", "env.num_envs=64"])
     env = make_env(cfg)
     env.base_env.occupancy = 0.9
@@ -388,8 +389,9 @@ def test_observe_brake_appends_the_brake_flag_to_the_policy_input():
 
 
 def test_action_repeat_must_divide_the_batch():
-    with pytest.raises(ValueError, match=r"multiple of env.num_envs x agent.action_repeat = 48"):
-        load_config("smoke", ["agent.action_repeat=3"])
+    with pytest.raises(ValueError,
+                       match=r"multiple of env.num_envs x agent.aids.action_repeat = 48"):
+        load_config("smoke", ["agent.aids.action_repeat=3"])
 
 
 @pytest.mark.parametrize("override, name", [
@@ -398,19 +400,22 @@ def test_action_repeat_must_divide_the_batch():
     ("loss.gamma=0", "loss.gamma"), ("optim.lr=nan", "optim.lr"),
     ("model.hidden=[]", "model.hidden"), ("curriculum.levels=[0.5,2.0]", "curriculum.levels"),
     ("collector.total_frames=512", "collector.total_frames"),
-    ("env.max_steps=0", "ParkingConfig.max_steps"), ("logger.exp_name=a/b", "logger.exp_name"),
-    ("env.num_envs=true", "num_envs"), ("env.max_steps=1.5", "max_steps"),
-    ("agent.emergency_brake=maybe", "emergency_brake"),
+    ("env.task.max_steps=0", "ParkingConfig.max_steps"),
+    ("logger.exp_name=a/b", "logger.exp_name"),
+    ("env.num_envs=true", "num_envs"), ("env.task.max_steps=1.5", "max_steps"),
+    ("agent.gear_head=maybe", "gear_head"),
     ("agent.observe_brake=true", "agent.observe_brake"),
-    ("agent.steer_clear=5", "agent.steer_clear"),
-    ("agent.brake_margin=0.2", "agent.brake_margin"),
+    ("agent.aids.brake.steer_clear=1", "BrakeConfig.steer_clear"),
+    ("agent.aids.brake.margin=2", "BrakeConfig.margin"),
+    ("agent.aids.brake.margni=0.2", "Key 'margni' not in 'BrakeConfig'"),
     ("agent.gear_head=true", "agent.gear_head"),
     ("loss.entropy_coef=-0.5", "loss.entropy_coef"),
-    ("train.collision_penalty=nan", "train.collision_penalty"),
-    ("train.collision_penalty=200", "train.collision_penalty"),
+    ("env.task.reward.collision_penalty=nan", "RewardConfig.collision_penalty"),
+    ("env.task.reward.collision_penalty=200", "env.task.reward.collision_penalty"),
     *([] if torch.cuda.is_available() else [("env.device=cuda", "env.device")]),
     ("env.device=meta", "env.device"),
-    ("agent.emergency_brake=2", "agent.emergency_brake must be true or false"),
+    ("agent.goal_features=2", "agent.goal_features must be true or false"),
+    ("agent.aids.observe_position=2", "agent.aids.observe_position must be true or false"),
     ("model.init_log_std=100", "model.init_log_std must be a number in [-20, 2]"),
     ("seed=4294967296", "seed must be an int in [0, 2**32)"),
 ])
@@ -422,15 +427,18 @@ def test_a_bad_training_field_is_one_line_naming_it(override, name, capsys):
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
 
 
-def _leaf_fields():
+def _leaf_fields(schema: type | None = None, prefix: str = ""):
+    """Every leaf field's dot name, torchpark's own dataclasses in the sections included."""
     from trainers.config import TrainConfig
 
-    for section in dataclasses.fields(TrainConfig):
-        if section.name == "seed":
-            yield "seed"
-            continue
-        for f in dataclasses.fields(section.default_factory()):
-            yield f"{section.name}.{f.name}"
+    hints = typing.get_type_hints(schema or TrainConfig)
+    for f in dataclasses.fields(schema or TrainConfig):
+        nested = [k for k in (*typing.get_args(hints[f.name]), hints[f.name])
+                  if dataclasses.is_dataclass(k)]
+        if nested:
+            yield from _leaf_fields(nested[0], f"{prefix}{f.name}.")
+        else:
+            yield f"{prefix}{f.name}"
 
 
 # Free-form strings: any folder name is a valid log_dir / exp_name (exp_name's '/' is refused
@@ -596,7 +604,7 @@ def test_two_evaluations_into_one_directory_the_second_is_refused(smoke_run, tmp
 
 @pytest.mark.parametrize(("sections", "message"), [
     ({"model": {"hidden": [32, 32]}}, "its actor does not fit the network its config builds"),
-    ({"agent": {"emergency_brake": 2}}, "agent.emergency_brake must be true or false, got 2"),
+    ({"agent": {"goal_features": 2}}, "agent.goal_features must be true or false, got 2"),
     ({"logger": {"exp_name": "${oc.env:HOME}"}},
      "has an OmegaConf interpolation ('${...}') in config.logger.exp_name"),
 ])

@@ -32,6 +32,7 @@ from torchpark.aids.starts import draw_near
 from torchpark.aids.step import (
     BRAKE_KEYS,
     DOCKING_KEYS,
+    INTERVENTIONS,
     AidedState,
     AidState,
     agent_step,
@@ -257,7 +258,7 @@ class ParkingEnv(EnvBase):
             return Binary(n=1, shape=(n, 1), dtype=torch.bool, device=dev)
 
         aid_specs = {key: Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
-                     if key == "interventions" else flag() for key in self._aid_keys}
+                     if key == INTERVENTIONS else flag() for key in self._aid_keys}
         self.observation_spec = Composite(
             observation=Unbounded(shape=(n, self.obs_dim), dtype=torch.float32, device=dev),
             success=flag(),

@@ -10,6 +10,7 @@ import torch
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
+from torchpark.aids.step import DOCKING_ENGAGED, INTERVENTIONS
 from torchpark.sim.observation import NAV_DIM
 from torchpark.transforms.features import goal_in_vehicle_frame
 
@@ -116,10 +117,10 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int, desc: str | None = 
             for key in outcome:
                 outcome[key] |= first & nxt[key][:, 0].cpu()
             length[first] = step
-            if "docking_engaged" in nxt.keys():
-                docked[first] = nxt["docking_engaged"][:, 0].cpu()[first]
-            if "interventions" in nxt.keys():
-                braked[first] = nxt["interventions"][:, 0].cpu()[first] > 0
+            if DOCKING_ENGAGED in nxt.keys():
+                docked[first] = nxt[DOCKING_ENGAGED][:, 0].cpu()[first]
+            if INTERVENTIONS in nxt.keys():
+                braked[first] = nxt[INTERVENTIONS][:, 0].cpu()[first] > 0
             steps[first] = base.state.steps.cpu()[first].float()
             poses.append(torch.where(ended[:, None], poses[-1], base.state.pose.cpu()))
             ended |= first

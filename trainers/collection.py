@@ -69,7 +69,7 @@ class RankCollection:
         self.workers = d.num_collectors
         replicas = d.world_size * d.num_collectors
         num_envs = cfg.env.num_envs // replicas
-        repeat = cfg.agent.action_repeat
+        repeat = cfg.agent.aids.action_repeat
         # Env steps per rank: the collector counts steps, frames are steps of dt.
         steps_per_batch = cfg.collector.frames_per_batch // repeat // d.world_size
         total_steps = remaining_frames // repeat // d.world_size

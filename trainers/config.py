@@ -24,23 +24,32 @@ from torchpark.env import check_device
 
 @dataclass
 class EnvConfig:
-    """The simulator: the paper's env (torchpark.ParkingConfig) with these fields set."""
+    """The simulator: ``num_envs`` lots on ``device`` of the training task ``task``
+    (torchpark.ParkingConfig, the paper's by default). Evaluation runs the same task with
+    the paper's reward and success test (:func:`env_configs`)."""
 
     num_envs: int = 1
     device: str = "cpu"
     compile_step: bool = False
-    max_steps: int = 1000
+    # E.g. env.task.max_steps=50; env.task.reward.collision_penalty=-1000 (far from the goal
+    # the paper's per-step reward 1 - cbrt(C) is below 0, and a -200 crash costs less than a
+    # long failed episode); env.task.reward.success_threshold (training's test only).
+    task: ParkingConfig = field(default_factory=ParkingConfig)
 
 
 @dataclass
 class AgentConfig:
-    """What the agent is made of besides its network: the same in training and evaluation
-    (torchpark.AidsConfig and the policy's input and action transforms). All off: the paper's
-    agent."""
+    """What the agent is made of besides its network: the aids around it (torchpark's own
+    AidsConfig: held actions, the emergency brake, the docking law, near-goal starts, its
+    position observed) and the transforms between the env and the network. All off: the
+    paper's agent. The same in training and evaluation, but for what only trains: near-goal
+    starts and the brake's penalty (evaluation keeps the paper's starts and reward)."""
 
-    # Steps of dt (0.1 s) each action is held for (AidsConfig.action_repeat; 1: the paper).
-    # Frames stay steps of dt: a batch of N envs x T actions is N x T x action_repeat frames.
-    action_repeat: int = 1
+    # E.g. agent.aids.action_repeat=5, agent.aids.brake.steer_clear=5 (a brake is on once
+    # any of its fields is set, or with agent.aids.brake={}), agent.aids.docking={},
+    # agent.aids.near_goal_starts.probability=0.5, agent.aids.brake=null (off).
+    # Frames are steps of dt: a batch of N envs x T actions is N x T x action_repeat frames.
+    aids: AidsConfig = field(default_factory=AidsConfig)
     # None: the policy commands (v, delta) directly (the paper). A list: it acts in [-1, 1]
     # and the env receives (max_speed, max_steer) * sign(u) |u| ** exponents
     # (torchpark.PowerActionMap), e.g. [3, 1] for fine speed control near standstill.
@@ -53,47 +62,9 @@ class AgentConfig:
     # Append the gap left along each LIDAR ray past the car's own box, on a log-like scale
     # (torchpark.ClearanceFeatures) to the policy's input.
     clearance_features: bool = False
-    # Append the rear axle's position in the lot (m, the env's "position" key,
-    # torchpark.AidsConfig.observe_position) to the policy's input.
-    observe_position: bool = False
-    # The emergency brake (torchpark.BrakeConfig): a step that would collide is not taken.
-    emergency_brake: bool = False
-    # With the brake, the steering angles it tries (the clear one nearest the commanded)
-    # before stopping a step; 0: it stops.
-    steer_clear: int = 0
-    # With the brake, metres of room it keeps: it also acts on a step that would bring the
-    # car's box, grown by this much on every side, onto an obstacle (BrakeConfig.margin).
-    brake_margin: float = 0.0
     # Append the env's braked flag (the brake stopped the last step) to the policy's input:
     # a deterministic policy that pushes into a parked car sees that it was stopped.
     observe_brake: bool = False
-    # The docking law (torchpark.DockingConfig) drives once the car is in the funnel behind
-    # its goal: 0 to docking_reach m back along the slot axis, within docking_lateral m and
-    # docking_heading rad of it.
-    docking: bool = False
-    docking_reach: float = DockingConfig.reach
-    docking_lateral: float = DockingConfig.lateral
-    docking_heading: float = DockingConfig.heading
-
-
-@dataclass
-class TrainAidsConfig:
-    """Aids of training only: evaluation keeps the paper's starts, reward and success test."""
-
-    # The training env's success threshold on C (the paper's 4e-4 by default).
-    success_threshold: float = 4e-4
-    # The probability that a training episode starts near its goal (NearGoalStarts), and the
-    # near-goal box: reach, lateral, heading (m, m, rad).
-    near_goal_starts: float = 0.0
-    near_goal_reach: float = NearGoalStarts.reach
-    near_goal_lateral: float = NearGoalStarts.lateral
-    near_goal_heading: float = NearGoalStarts.heading
-    # BrakeConfig.penalty: added to the reward of a step the brake stops or steers.
-    brake_penalty: float = 0.0
-    # The training env's reward on the step that collides (the paper's RewardConfig
-    # collision_penalty, -200, by default): far from the goal the paper's per-step reward
-    # 1 - cbrt(C) is below 0, and a -200 crash costs less than a long failed episode.
-    collision_penalty: float = RewardConfig.collision_penalty
 
 
 @dataclass
@@ -172,7 +143,6 @@ class DistConfig:
 class TrainConfig:
     env: EnvConfig = field(default_factory=EnvConfig)
     agent: AgentConfig = field(default_factory=AgentConfig)
-    train: TrainAidsConfig = field(default_factory=TrainAidsConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
     collector: CollectorConfig = field(default_factory=CollectorConfig)
     loss: LossConfig = field(default_factory=LossConfig)
@@ -193,10 +163,11 @@ def _fast() -> TrainConfig:
     curriculum (2M frames = steps of dt per level) as the paper."""
     return TrainConfig(
         env=EnvConfig(num_envs=1024, compile_step=True),
-        agent=AgentConfig(action_repeat=5, action_exponents=[1.0, 1.0], goal_features=True,
-                          emergency_brake=True, steer_clear=5, observe_brake=True,
-                          docking=True),
-        train=TrainAidsConfig(near_goal_starts=0.5),
+        agent=AgentConfig(
+            aids=AidsConfig(action_repeat=5, brake=BrakeConfig(steer_clear=5),
+                            docking=DockingConfig(),
+                            near_goal_starts=NearGoalStarts(probability=0.5)),
+            action_exponents=[1.0, 1.0], goal_features=True, observe_brake=True),
         collector=CollectorConfig(frames_per_batch=1024 * 32 * 5, compile_policy=True),
         loss=LossConfig(gamma=0.995, mini_batch_size=1024, ppo_epochs=8, reward_scale=0.1),
         model=ModelConfig(hidden=[256, 256], init_log_std=-1.0, state_dependent_std=True),
@@ -207,7 +178,7 @@ def _fast() -> TrainConfig:
 def _smoke() -> TrainConfig:
     """A few thousand frames, under a minute: for tests and CI."""
     return TrainConfig(
-        env=EnvConfig(num_envs=16, max_steps=50),
+        env=EnvConfig(num_envs=16, task=ParkingConfig(max_steps=50)),
         curriculum=CurriculumConfig(frames_per_level=1024),
         collector=CollectorConfig(frames_per_batch=16 * 64, total_frames=16 * 64 * 4),
         loss=LossConfig(mini_batch_size=256, ppo_epochs=2),
@@ -250,35 +221,24 @@ def check_flags(values: dict, schema: type = TrainConfig, prefix: str = "") -> N
     hints = typing.get_type_hints(schema)
     for key, value in values.items():
         kind = hints.get(key)
-        if dataclasses.is_dataclass(kind) and isinstance(value, dict):
-            check_flags(value, kind, f"{prefix}{key}.")
+        nested = [k for k in (*typing.get_args(kind), kind) if dataclasses.is_dataclass(k)]
+        if nested and isinstance(value, dict):  # a section, or an ``X | None`` of one
+            check_flags(value, nested[0], f"{prefix}{key}.")
         elif kind is bool and not isinstance(value, bool):
             raise ValueError(f"{prefix}{key} must be true or false, got {value!r}")
 
 
 def env_configs(cfg: TrainConfig, training: bool) -> tuple[ParkingConfig, AidsConfig | None]:
-    """The env's task and aids for this run. What the agent is made of (``agent``: held
-    actions, the brake, the docking law) is the same in training and evaluation; the training
-    aids (``train``: success threshold, collision and brake penalties, near-goal starts) apply
-    only with ``training``, evaluation keeps the paper's. No aid at all: (config, None), the
-    paper's env."""
-    agent, aids = cfg.agent, cfg.train
-    reward = RewardConfig(success_threshold=aids.success_threshold,
-                          collision_penalty=aids.collision_penalty) if training else RewardConfig()
-    config = ParkingConfig(max_steps=cfg.env.max_steps, reward=reward)
-    brake = BrakeConfig(steer_clear=agent.steer_clear, margin=agent.brake_margin,
-                        penalty=aids.brake_penalty if training else 0.0) \
-        if agent.emergency_brake else None
-    docking = DockingConfig(reach=agent.docking_reach, lateral=agent.docking_lateral,
-                            heading=agent.docking_heading) if agent.docking else None
-    near = NearGoalStarts(probability=aids.near_goal_starts, reach=aids.near_goal_reach,
-                          lateral=aids.near_goal_lateral, heading=aids.near_goal_heading) \
-        if training and aids.near_goal_starts > 0 else None
-    if (agent.action_repeat == 1 and brake is None and docking is None and near is None
-            and not agent.observe_position):
-        return config, None
-    return config, AidsConfig(action_repeat=agent.action_repeat, brake=brake, docking=docking,
-                              near_goal_starts=near, observe_position=agent.observe_position)
+    """The env's task and aids for this run: in training ``env.task`` and ``agent.aids`` as
+    they are; in evaluation the same task with the paper's reward and success test, and the
+    same aids without what only trains (near-goal starts, the brake's penalty). No aid at
+    all: (task, None), the paper's env."""
+    task, aids = cfg.env.task, cfg.agent.aids
+    if not training:
+        task = replace(task, reward=RewardConfig())
+        aids = replace(aids, near_goal_starts=None, brake=None if aids.brake is None
+                       else replace(aids.brake, penalty=0.0))
+    return task, None if aids == AidsConfig() else aids
 
 
 def _check(cfg: TrainConfig) -> None:
@@ -294,8 +254,9 @@ def _check(cfg: TrainConfig) -> None:
              "optim.max_grad_norm", "a finite number > 0", cfg.optim.max_grad_norm)
     require(finite(loss.entropy_coef) and loss.entropy_coef >= 0, "loss.entropy_coef",
              "a finite number >= 0", loss.entropy_coef)
-    require(finite(cfg.train.collision_penalty) and cfg.train.collision_penalty <= 0,
-             "train.collision_penalty", "a finite number <= 0", cfg.train.collision_penalty)
+    penalty = cfg.env.task.reward.collision_penalty
+    require(penalty <= 0, "env.task.reward.collision_penalty", "<= 0 (a collision must not "
+            "pay)", penalty)
     require(loss.ppo_epochs >= 1, "loss.ppo_epochs", "an int >= 1", loss.ppo_epochs)
     require(finite(cfg.optim.lr) and cfg.optim.lr > 0, "optim.lr", "a finite number > 0",
              cfg.optim.lr)
@@ -317,12 +278,12 @@ def _check(cfg: TrainConfig) -> None:
     check_seed(cfg.seed, "seed")
     check_device(cfg.env.device, "env.device")
     check_agent(cfg)
-    n, batch, k = cfg.env.num_envs, cfg.collector.frames_per_batch, cfg.agent.action_repeat
+    n, batch, k = cfg.env.num_envs, cfg.collector.frames_per_batch, cfg.agent.aids.action_repeat
     if n < 1:
         raise ValueError(f"env.num_envs must be >= 1, got {n}")
     if batch < n * k or batch % (n * k):
         raise ValueError(f"collector.frames_per_batch must be a multiple of env.num_envs x "
-                         f"agent.action_repeat = {n * k}, got {batch}")
+                         f"agent.aids.action_repeat = {n * k}, got {batch}")
     require(cfg.collector.total_frames >= batch, "collector.total_frames",
              f">= collector.frames_per_batch = {batch}", cfg.collector.total_frames)
     if not 1 <= cfg.loss.mini_batch_size <= batch // k:
@@ -332,26 +293,15 @@ def _check(cfg: TrainConfig) -> None:
 
 
 def check_agent(cfg: TrainConfig) -> None:
-    """The env's fields as torchpark checks them, and the agent's aids against each other."""
-    for training in (True, False):
-        try:
-            env_configs(cfg, training)
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"env: {err}") from None
-    require(not cfg.agent.observe_brake or cfg.agent.emergency_brake, "agent.observe_brake",
-             "False without agent.emergency_brake (there is no brake flag to observe)",
-             cfg.agent.observe_brake)
-    require(not cfg.agent.gear_head or cfg.agent.action_exponents is not None,
-             "agent.gear_head", "False without agent.action_exponents (the gear picks a pair "
-             "of [-1, 1] actions for the power map)", cfg.agent.gear_head)
-    require(cfg.agent.steer_clear == 0 or cfg.agent.emergency_brake, "agent.steer_clear",
-             "0 without agent.emergency_brake", cfg.agent.steer_clear)
-    require(cfg.agent.brake_margin == 0 or cfg.agent.emergency_brake, "agent.brake_margin",
-             "0 without agent.emergency_brake", cfg.agent.brake_margin)
-    for name in ("docking_reach", "docking_lateral", "docking_heading"):
-        value, default = getattr(cfg.agent, name), getattr(AgentConfig, name)
-        require(cfg.agent.docking or value == default, f"agent.{name}",
-                 f"{default:g} (its default) without agent.docking", value)
+    """The agent's transforms against its aids (the aids' and the task's own fields are
+    checked by their dataclasses as they are built)."""
+    agent = cfg.agent
+    require(not agent.observe_brake or agent.aids.brake is not None, "agent.observe_brake",
+            "False without agent.aids.brake (there is no brake flag to observe)",
+            agent.observe_brake)
+    require(not agent.gear_head or agent.action_exponents is not None,
+            "agent.gear_head", "False without agent.action_exponents (the gear picks a pair "
+            "of [-1, 1] actions for the power map)", agent.gear_head)
 
 
 def _check_dist(cfg: TrainConfig) -> None:

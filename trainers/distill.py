@@ -62,11 +62,11 @@ from torchrl.envs import Compose, Transform, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchpark.aids.brake import steer_angles
-from torchpark.aids.config import BrakeConfig, DockingConfig
+from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts
 from torchpark.aids.docking import error_from_goal, in_funnel, in_settle
 from torchpark.aids.starts import near_starts_free
 from torchpark.aids.step import AidedState, AidState, aided_control
-from torchpark.config import check_types, positive, require
+from torchpark.config import ParkingConfig, check_types, positive, require
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.experts import ExpertConfig, PlannerConfig
 from torchpark.experts.planner import lot_planner, plan_control
@@ -229,14 +229,15 @@ def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
     if cfg.width is not None or cfg.depth is not None:
         hidden = [cfg.width or hidden[0]] * (cfg.depth or len(hidden))
     student = TrainConfig(
-        env=EnvConfig(num_envs=cfg.envs, max_steps=tcfg.env.max_steps),
-        agent=AgentConfig(action_exponents=[cfg.speed_exponent, cfg.steer_exponent],
-                          gear_head=True, goal_features=True,
-                          clearance_features=cfg.clearance_features,
-                          observe_position=cfg.position),
+        env=EnvConfig(num_envs=cfg.envs,
+                      task=ParkingConfig(max_steps=tcfg.env.task.max_steps)),
+        agent=AgentConfig(
+            aids=AidsConfig(observe_position=cfg.position, near_goal_starts=NearGoalStarts(
+                probability=cfg.near_goal) if cfg.near_goal > 0 else None),
+            action_exponents=[cfg.speed_exponent, cfg.steer_exponent], gear_head=True,
+            goal_features=True, clearance_features=cfg.clearance_features),
         model=dataclasses.replace(tcfg.model, hidden=hidden),
         logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
-    student.train.near_goal_starts = cfg.near_goal
     return student
 
 
@@ -383,15 +384,16 @@ def check(actor, scfg: TrainConfig, obs_norm: dict, episodes: int, seed: int
     row = {}
     for name, near, occupancy in (("yardstick", 1.0, 0.0), ("uniform_0", 0.0, 0.0),
                                   ("uniform_90", 0.0, 0.9)):
-        cfg = dataclasses.replace(scfg, train=dataclasses.replace(scfg.train,
-                                                                   near_goal_starts=near))
+        aids = dataclasses.replace(scfg.agent.aids, near_goal_starts=None if near == 0 else
+                                   NearGoalStarts(probability=near))
+        cfg = dataclasses.replace(scfg, agent=dataclasses.replace(scfg.agent, aids=aids))
         base = make_base_env(cfg, training=True, num_envs=episodes, seed=seed)
         base.occupancy = occupancy
         inputs = policy_input(cfg, base)
         env = TransformedEnv(base, Compose(*inputs))
         inputs[-1].load_state_dict(obs_norm)
         inputs[-1].freeze()
-        run = run_episodes(actor, env, cfg.env.max_steps)
+        run = run_episodes(actor, env, cfg.env.task.max_steps)
         for k, threshold in enumerate(run.thresholds):
             row[f"{name}_{threshold:g}"] = run.reached[:, k].float().mean().item()
         row[f"{name}_collision"] = run.collision.float().mean().item()

@@ -28,6 +28,7 @@ import torch
 import torch.distributed as dist
 from tensordict import TensorDictBase
 from torch.distributed.launcher.api import LaunchConfig, elastic_launch
+from torch.nn.parallel import DistributedDataParallel
 
 
 @dataclass(frozen=True)
@@ -183,3 +184,24 @@ def merge_normalisers(states: Sequence[dict], counted: dict[str, torch.Tensor] |
 def norm_counts(state: dict) -> dict[str, torch.Tensor]:
     """The counts of a ``VecNormV2`` state, to pass to :func:`merge_normalisers` next."""
     return {k: v.clone() for k, v in state[_NORM_STATE].items() if k.startswith("count")}
+
+
+def check_ranks_agree(modules: list[torch.nn.Module], world: World) -> None:
+    """RuntimeError unless every rank holds the same parameters (a step that bypassed the
+    gradients' all-reduce would part them): checked at each checkpoint."""
+    if not world.parallel:
+        return
+    mine = torch.cat([p.detach().reshape(-1).cpu() for m in modules for p in m.parameters()])
+    if not all(torch.equal(mine, other) for other in all_gather(mine, world)):
+        raise RuntimeError("the ranks' networks differ: their gradients were not all-reduced")
+
+
+def data_parallel(loss_module: torch.nn.Module, world: World, seed: int) -> torch.nn.Module:
+    """The loss every rank computes through: ``DistributedDataParallel`` around it with
+    several ranks (only DDP's forward all-reduces the gradients), the loss itself with one.
+    Each rank then draws from its own stream (the policy's samples, the minibatches)."""
+    if not world.parallel:
+        return loss_module
+    wrapped = DistributedDataParallel(loss_module)
+    torch.manual_seed(rank_seed(seed, world.rank, world.size))
+    return wrapped

@@ -19,7 +19,7 @@ percentile of the final position and heading errors; with ``--videos`` (mp4 by d
 one rollout video per level. ``--aids`` puts the checkpoint's policy under other agent-side
 aids than it was trained with (EVALUATION_AIDS: the brake and the docking law, which act
 around the network and leave its input and output as trained), e.g. a policy alone as the
-approach of a hybrid: ``--aids emergency_brake=true steer_clear=5 docking=true``.
+approach of a hybrid: ``--aids brake.steer_clear=5 docking={}``.
 ``--expert planner`` evaluates the hand-written agent (:mod:`torchpark.experts`: approach
 planner, docking law, brake) on the same lots, as a reference any learned agent can be set
 beside.
@@ -59,25 +59,25 @@ RESULTS = ("occupancy", "episodes", "success", "success_4e-3", "success_4e-2", "
            "pos_err_median_m", "pos_err_p90_m", "heading_err_median_deg", "heading_err_p90_deg",
            "paper_success")
 COLUMNS = COMPOSITION + RESULTS
-# The agent's fields (trainers.config.AgentConfig) --aids may set: aids around the network.
+# The agent's aids (torchpark.AidsConfig) --aids may set: those around the network.
 # --episodes: lots per level, all stepped at once (a typo must not allocate the machine's
 # memory).
 MAX_EPISODES = 1_000_000
 # The hand-written agents --expert names (torchpark.experts), and their COMPOSITION policy.
 EXPERTS = {"planner": "the approach planner (torchpark.experts.PlannerExpert), hand-written"}
-EVALUATION_AIDS = ("emergency_brake", "steer_clear", "brake_margin", "docking",
-                   "docking_reach", "docking_lateral", "docking_heading")
+EVALUATION_AIDS = ("brake", "docking")
 
 
 def with_aids(cfg: TrainConfig, aids: list[str]) -> TrainConfig:
-    """``cfg`` with the agent's aids set by ``aids`` (``NAME=VALUE``, NAME one of
-    EVALUATION_AIDS), checked as the trainer checks them; ValueError naming the field."""
+    """``cfg`` with the agent's aids (``agent.aids``) set by ``aids`` (``NAME=VALUE``, NAME
+    one of EVALUATION_AIDS or a field of it, e.g. ``brake.steer_clear=5``, ``docking={}``),
+    checked as the trainer checks them; ValueError naming the field."""
     for item in aids:
         name = item.split("=", 1)[0]
-        if "=" not in item or name not in EVALUATION_AIDS:
+        if "=" not in item or name.split(".")[0] not in EVALUATION_AIDS:
             raise ValueError(f"--aids takes NAME=VALUE with NAME one of "
-                             f"{', '.join(EVALUATION_AIDS)}; got {item!r}")
-    cfg = override(cfg, [f"agent.{item}" for item in aids])
+                             f"{', '.join(EVALUATION_AIDS)} or a field of one; got {item!r}")
+    cfg = override(cfg, [f"agent.aids.{item}" for item in aids])
     check_agent(cfg)
     return cfg
 
@@ -194,7 +194,7 @@ def load_agent(path: str, device: str | None = None, aids: list[str] | None = No
     return Agent(
         lambda occupancy, episodes, seed: make_eval_env(cfg, checkpoint["obs_norm"], occupancy,
                                                         episodes, seed),
-        lambda env: actor, cfg.env.max_steps,
+        lambda env: actor, cfg.env.task.max_steps,
         composition(env_configs(cfg, training=False)[1], policy, added=bool(aids),
                     sampled=sample))
 

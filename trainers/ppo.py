@@ -10,42 +10,33 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import time
 from pathlib import Path
 
 import torch
 from tensordict import TensorDict
-from torch.nn.parallel import DistributedDataParallel
-from torchrl.collectors import Collector
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 from torchrl.record.loggers import TensorboardLogger
 from tqdm import tqdm
 
 from torchpark import OccupancyCurriculum
-from torchpark.files import locked, save_torch
-from trainers.checkpoint import EVALUATION_KEYS, RESUME_KEYS, load_checkpoint, load_weights
+from torchpark.files import locked
 from trainers.collection import RankCollection
 from trainers.config import PRESETS, TrainConfig, load_config
 from trainers.distributed import (
     World,
     all_gather,
+    data_parallel,
     gather_episodes,
-    gather_to_main,
     join,
     launch,
     launched,
     leave,
-    rank_seed,
     standardise_advantage,
 )
-from trainers.utils import build_models, reset_exploration
-
-# Config sections a checkpoint must share with the run that resumes it / starts from it.
-_MODEL_SECTIONS = ("env", "agent", "train", "model", "curriculum")
-_INIT_SECTIONS = ("agent", "model")
-_INIT_FREE = ("model.init_log_std",)  # a started actor explores from the run's own std
+from trainers.runs import load_start, prepare, run_dir, save_run
+from trainers.utils import build_models
 
 
 def episode_stats(ended: TensorDict | None, repeat: int = 1) -> dict[str, float]:
@@ -63,34 +54,6 @@ def episode_stats(ended: TensorDict | None, repeat: int = 1) -> dict[str, float]
         "episode/timeout_rate": ended["truncated"].float().mean().item(),
         "episode/final_distance": ended["observation"][:, :2].norm(dim=-1).median().item(),
     }
-
-
-# What a run writes into its directory (logger.log_dir / logger.exp_name).
-RUN_FILES = ("checkpoint_*.pt", "events.out.tfevents.*")
-
-
-def run_dir(cfg: TrainConfig) -> Path:
-    return Path(cfg.logger.log_dir) / cfg.logger.exp_name
-
-
-def check_log_dir(path: Path, resume: str | None, overwrite: bool,
-                  reads: tuple[str | None, ...] = ()) -> list[Path]:
-    """The files of another run in the run directory ``path`` (made and locked by the
-    caller) that this run replaces: none when it holds none, or when this run resumes a
-    checkpoint from it (it goes on with that run); with ``overwrite``, the files a later
-    step deletes once every check of the run has passed (never one of the files the run
-    ``reads``); otherwise a ValueError."""
-    existing = sorted(f for pattern in RUN_FILES for f in path.glob(pattern))
-    continues = resume is not None and Path(resume).resolve().parent == path.resolve()
-    if not existing or continues:
-        return []
-    if not overwrite:
-        raise ValueError(f"{str(path)!r} already holds a run ({len(existing)} files, e.g. "
-                         f"{existing[0].name}): choose another logger.exp_name or "
-                         f"logger.log_dir, --resume one of its checkpoints, or pass "
-                         f"--overwrite to delete them")
-    kept = {Path(p).resolve() for p in reads if p is not None}
-    return [f for f in existing if f.resolve() not in kept]
 
 
 def recompute_log_prob_(actor: torch.nn.Module, batch: TensorDict, key: str) -> None:
@@ -125,101 +88,12 @@ def ppo_step(loss_fn: torch.nn.Module, optim: torch.optim.Optimizer, sample: Ten
     return losses
 
 
-def check_ranks_agree(modules: list[torch.nn.Module], world: World) -> None:
-    """RuntimeError unless every rank holds the same parameters (a step that bypassed the
-    gradients' all-reduce would part them): checked at each checkpoint."""
-    if not world.parallel:
-        return
-    mine = torch.cat([p.detach().reshape(-1).cpu() for m in modules for p in m.parameters()])
-    if not all(torch.equal(mine, other) for other in all_gather(mine, world)):
-        raise RuntimeError("the ranks' networks differ: their gradients were not all-reduced")
-
-
-def run_state(env, collector: Collector) -> dict:
-    """What an exact resume needs beyond the networks, the optimiser and the transforms'
-    statistics: every lot's state and the env's generator (``ParkingEnv.snapshot``), the
-    collector's carried TensorDict (the next step's input: observation, step counts, episode
-    rewards; not the collector's own trajectory ids, bookkeeping PPO does not read) and
-    torch's random state (the policy's samples, the minibatch order)."""
-    # The carrier is the collector's private attribute: torchrl 0.14 has no public accessor
-    # and its own load_state_dict starts fresh trajectories (tests/test_trainer.py checks
-    # that a resumed run equals an uninterrupted one, bit for bit).
-    carrier = collector._carrier.exclude("collector")
-    state = {"sim": env.base_env.snapshot(), "carrier": carrier.to_dict(),
-             "rng": torch.get_rng_state()}
-    if torch.device(env.device).type == "cuda":
-        state["cuda_rng"] = torch.cuda.get_rng_state(env.device)
-    return state
-
-
-def resume_state(state: dict, env, collector: Collector) -> None:
-    """Put the env, the collector and torch's random state where a rank of the checkpoint's
-    run was (after the collector's own reset, which would otherwise have moved them);
-    ``state`` is that rank's :func:`run_state`."""
-    env.base_env.restore(state["sim"])
-    carrier = collector._carrier
-    carrier.update(type(carrier).from_dict(state["carrier"], batch_size=carrier.batch_size,
-                                           device=carrier.device))
-    torch.set_rng_state(state["rng"])
-    if "cuda_rng" in state:
-        torch.cuda.set_rng_state(state["cuda_rng"], env.device)
-
-
-def rank_states(checkpoint: dict, cfg: TrainConfig) -> list[dict] | None:
-    """The per-rank run states of a checkpoint, when this run can continue them exactly:
-    written with direct collection by as many ranks as this run has (one rank: the
-    top-level ``sim`` / ``carrier`` / ``rng``; K ranks: ``ranks``)."""
-    if cfg.dist.collectors != "direct":
-        return None
-    states = checkpoint.get("ranks") or ([checkpoint] if "sim" in checkpoint else None)
-    if states is None or len(states) != cfg.dist.world_size:
-        return None
-    return states
-
-
-def config_differences(saved: dict, cfg: TrainConfig, section: str, free: tuple = ()) -> str:
-    """The fields of ``cfg``'s ``section`` that differ from a checkpoint's saved config, as
-    ``"section.field=<saved> in the checkpoint, <now> now"`` (empty when none do), leaving
-    out the dot names in ``free``. A field the checkpoint lacks (added to the config after it
-    was written) is its default, which does what the code did before the field existed."""
-    now = dataclasses.asdict(getattr(cfg, section))
-    old = {**dataclasses.asdict(getattr(TrainConfig(), section)),
-           **saved.get(section, {})}
-    return ", ".join(f"{section}.{k}={old.get(k)!r} in the checkpoint, {now.get(k)!r} now"
-                     for k in sorted(set(old) | set(now))
-                     if old.get(k) != now.get(k) and f"{section}.{k}" not in free)
-
-
-def prepare(cfg: TrainConfig, resume: str | None, overwrite: bool, init: str | None = None
-            ) -> list[Path]:
-    """What is checked before any rank starts, in the run directory the caller has locked:
-    the directory (:func:`check_log_dir`), that the checkpoint to resume was trained with the
-    same task, agent and model, and that the checkpoint to start from (``init``) has the
-    run's agent and model (its std may differ: the run's ``model.init_log_std`` replaces
-    it). Returns the files of another run that ``overwrite`` replaces: deleted by the run
-    once it has loaded everything it reads (:func:`_train`), not here."""
-    if resume is not None and init is not None:
-        raise ValueError("--resume continues a run and --init starts one: pass one of them")
-    stale = check_log_dir(run_dir(cfg), resume, overwrite, reads=(resume, init))
-    for path, keys, sections, free in ((resume, RESUME_KEYS, _MODEL_SECTIONS, ()),
-                                       (init, EVALUATION_KEYS, _INIT_SECTIONS, _INIT_FREE)):
-        if path is None:
-            continue
-        saved = load_checkpoint(path, "cpu", keys)["config"]
-        for section in sections:
-            listed = config_differences(saved, cfg, section, free)
-            if listed:
-                raise ValueError(f"checkpoint {path!r} was trained with another {section} "
-                                 f"config: {listed}")
-    return stale
-
-
 def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False,
           init: str | None = None) -> Path:
     """Run PPO; returns the path of the final checkpoint. The run directory is locked for
     the whole run (a second run into it is refused: ``torchpark.files.locked``); one that
     holds another run is refused unless ``overwrite``, whose files are deleted only once
-    the run has checked and loaded everything (see :func:`check_log_dir`). ``init``: a
+    the run has checked and loaded everything (:func:`trainers.runs.check_log_dir`). ``init``: a
     checkpoint (e.g. a distilled student, ``trainers.distill``) whose actor's mean and
     observation statistics the run starts from, its std reset to ``model.init_log_std``
     (:func:`~trainers.utils.reset_exploration`) and the statistics frozen, with a fresh
@@ -261,23 +135,17 @@ def _launched_rank(cfg: TrainConfig, resume: str | None, init: str | None,
 
 def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
            stale: list[Path]) -> Path:
-    directory = run_dir(cfg)
-    checkpoint = load_checkpoint(resume, world.device, RESUME_KEYS) if resume else None
-    start = load_checkpoint(init, world.device) if init else None
-    # What the actor started from, kept through resumes (the evaluator's "policy" column).
-    started_from = checkpoint.get("started_from") if checkpoint is not None else init
-    torch.manual_seed(cfg.seed)  # the same initial networks on every rank
-    device = world.device
-    frames = checkpoint["frames"] if checkpoint is not None else 0
+    start = load_start(resume, init, world.device)
+    frames, repeat = start.frames, cfg.agent.aids.action_repeat  # frames per env step
     remaining = cfg.collector.total_frames - frames
-    repeat = cfg.agent.action_repeat  # frames per env step
     if remaining < cfg.collector.frames_per_batch:
         raise ValueError(f"collector.total_frames={cfg.collector.total_frames} leaves less than "
                          f"one batch after the checkpoint's {frames} frames")
+    torch.manual_seed(cfg.seed)  # the same initial networks on every rank
 
-    actor, critic = build_models(cfg)
-    actor, critic = actor.to(device), critic.to(device)
-    # The advantages are standardised over each minibatch of all ranks by ppo_step.
+    # Models, loss, advantage, optimiser
+    actor, critic = (m.to(world.device) for m in build_models(cfg))
+    # normalize_advantage=False: ppo_step standardises over each minibatch of all ranks.
     loss_module = ClipPPOLoss(
         actor, critic, clip_epsilon=cfg.loss.clip_epsilon,
         entropy_bonus=cfg.loss.entropy_coef > 0, entropy_coeff=cfg.loss.entropy_coef,
@@ -285,35 +153,13 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
     advantage = GAE(gamma=cfg.loss.gamma, lmbda=cfg.loss.gae_lambda, value_network=critic,
                     average_gae=False)
     optim = torch.optim.Adam(loss_module.parameters(), lr=cfg.optim.lr)
-    if start is not None:
-        load_weights(actor, start["actor"], init, "actor")
-        reset_exploration(actor, cfg.model)
-    if checkpoint is not None:
-        for module, entry in ((actor, "actor"), (critic, "critic"), (optim, "optim")):
-            load_weights(module, checkpoint[entry], resume, entry)
-    # Only DDP's forward all-reduces the gradients: the loss is always computed through it.
-    loss_fn = DistributedDataParallel(loss_module) if world.parallel else loss_module
-    if world.parallel:  # each rank's own stream for the policy's samples, the minibatches
-        torch.manual_seed(rank_seed(cfg.seed, world.rank, world.size))
+    start.load_networks(actor, critic, optim, cfg)
+    loss_fn = data_parallel(loss_module, world, cfg.seed)
 
+    # Collector, its envs, the logger
     collection = RankCollection(cfg, actor, world, remaining)
+    start.load_envs(collection, cfg, world)
     env, collector = collection.env, collection.collector
-    exact = rank_states(checkpoint, cfg) if checkpoint is not None else None
-    if checkpoint is None:
-        if start is not None:
-            collection.load_normaliser(start["obs_norm"])
-        collection.spread_timeouts()
-    else:
-        collection.load_env_state(checkpoint["env"])
-        if exact is not None:
-            resume_state(exact[world.rank], env, collector)
-        elif world.main:
-            print(f"{resume}: no env state for {world.size} rank(s) with "
-                  f"{cfg.dist.collectors} collection; resuming with fresh episodes")
-    if started_from is not None:
-        # The started actor's inputs stay on its own scale: a few batches of the new run's
-        # statistics shift them enough to undo a millimetre-precise student.
-        collection.freeze_normaliser()
     if world.main:  # --overwrite: everything is loaded and built; the other run's files go
         for f in stale:
             f.unlink(missing_ok=True)
@@ -323,26 +169,12 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
     mini_batch = cfg.loss.mini_batch_size // world.size  # each rank's share
 
     def save(name: str) -> Path:
-        path = directory / name
-        check_ranks_agree([actor, critic], world)
-        states = None
-        if collection.direct:
-            states = gather_to_main(run_state(env, collector), world)
-        if not world.main:
-            return path
-        state = {"config": dataclasses.asdict(cfg), "frames": frames,
-                 "actor": actor.state_dict(), "critic": critic.state_dict(),
-                 "optim": optim.state_dict(), "env": env.state_dict(),
-                 "obs_norm": env.transform[-1].state_dict()}
-        if states is not None:
-            state.update(states[0] if len(states) == 1 else {"ranks": states})
-        if started_from is not None:
-            state["started_from"] = started_from
-            state["trained_by"] = (f"PPO ({cfg.logger.exp_name} run, {frames:,} frames) "
-                                   f"from {started_from}")
-        return save_torch(state, path)
+        return save_run(run_dir(cfg) / name, cfg, frames, actor, critic, optim, collection,
+                        world, start.started_from)
 
-    next_checkpoint = (frames // cfg.logger.checkpoint_every + 1) * cfg.logger.checkpoint_every
+    # Main loop
+    every = cfg.logger.checkpoint_every
+    next_checkpoint = (frames // every + 1) * every
     if cfg.env.compile_step and world.main:
         print("compiling the env's step and reset for the first batch (tens of seconds) ...",
               flush=True)
@@ -359,23 +191,20 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
             recompute_log_prob_(actor, batch, loss_module.tensor_keys.sample_log_prob)
             flat = batch.reshape(-1)
             for _ in range(cfg.loss.ppo_epochs):
-                for index in torch.randperm(flat.shape[0], device=device).split(mini_batch):
+                for index in torch.randperm(flat.shape[0], device=world.device).split(mini_batch):
                     losses = ppo_step(loss_fn, optim, flat[index], cfg.optim.max_grad_norm)
             collector.update_policy_weights_()
             collection.sync_normalisers()
             ended = gather_episodes(batch, world)
             train_time = time.perf_counter() - train_start
-
             if world.main:
                 scalars = {
                     **episode_stats(ended, repeat),
                     "curriculum/occupancy": curriculum.occupancy,
                     "curriculum/phase": curriculum.phase,
                     "curriculum/success_threshold": env.base_env.success_threshold,
-                    "loss/objective": losses["loss_objective"].item(),
-                    "loss/critic": losses["loss_critic"].item(),
-                    "loss/kl_approx": losses["kl_approx"].item(),
-                    "loss/clip_fraction": losses["clip_fraction"].item(),
+                    **{f"loss/{k}": losses[f"loss_{k}"].item() for k in ("objective", "critic")},
+                    **{f"loss/{k}": losses[k].item() for k in ("kl_approx", "clip_fraction")},
                     "time/collect_fps": batch_frames / collect_time,
                     "time/train_fps": batch_frames / train_time,
                     "time/fps": batch_frames / (collect_time + train_time),
@@ -387,7 +216,7 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
                                 success=f"{scalars.get('episode/success_rate', float('nan')):.2f}")
             if frames >= next_checkpoint:
                 save(f"checkpoint_{frames}.pt")
-                next_checkpoint += cfg.logger.checkpoint_every
+                next_checkpoint += every
             collect_start = time.perf_counter()
     final = save("checkpoint_final.pt")
     collection.shutdown()

@@ -36,6 +36,7 @@ from torchpark import (
     ParkingEnv,
     PowerActionMap,
 )
+from torchpark.aids.step import BRAKED
 from trainers.config import ModelConfig, TrainConfig, env_configs
 
 NORMALISED = "observation_norm"  # the normalised observation the networks read
@@ -187,12 +188,12 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
     if agent.clearance_features:
         transforms.append(ClearanceFeatures(base.config, source[0], "observation_policy"))
         source = ["observation_policy"]
-    if agent.observe_position:
+    if agent.aids.observe_position:
         transforms.append(CatTensors([*source, "position"], "observation_policy",
                                      del_keys=False, sort=False))
         source = ["observation_policy"]
     if agent.observe_brake:
-        transforms += [DTypeCastTransform(torch.bool, torch.float32, in_keys=["braked"],
+        transforms += [DTypeCastTransform(torch.bool, torch.float32, in_keys=[BRAKED],
                                           out_keys=["braked_input"]),
                        CatTensors([*source, "braked_input"], "observation_policy",
                                   del_keys=False, sort=False)]

@@ -33,9 +33,12 @@ from torchpark.sim.step import (
 from torchpark.sim.vehicle import clamp_action
 from torchpark.sim.world import World
 
-# The aids' per-step outputs (ParkingEnv declares those of the aids it has):
-BRAKE_KEYS = ("braked", "interventions")
-DOCKING_KEYS = ("docking_engaged",)
+# The aids' per-step outputs (ParkingEnv declares those of the aids it has), (N, 1) each:
+# the brake stopped the last step of dt (bool), the steps of dt it stopped or steered this
+# episode (int64); the docking law drives this episode (bool).
+BRAKED, INTERVENTIONS, DOCKING_ENGAGED = "braked", "interventions", "docking_engaged"
+BRAKE_KEYS = (BRAKED, INTERVENTIONS)
+DOCKING_KEYS = (DOCKING_ENGAGED,)
 
 
 class AidState(NamedTuple):
