@@ -3,6 +3,8 @@ aided step (compiled or not), setting a state, and input checks."""
 
 from __future__ import annotations
 
+import os
+import shutil
 import subprocess
 import sys
 
@@ -73,6 +75,13 @@ def test_wrong_action_shape_raises(shape):
     env.reset()
     with pytest.raises(ValueError, match=r"action must have shape \(3, 2\)"):
         env._step(TensorDict({"action": torch.zeros(shape)}, batch_size=[]))
+
+
+def test_a_step_without_an_action_says_so():
+    env = ParkingEnv(3, seed=0)
+    with pytest.raises(ValueError, match=r"must hold an 'action' tensor of shape \(3, 2\).*"
+                                         r"set td\['action'\] before env.step\(td\)"):
+        env.step(env.reset())
 
 
 @pytest.mark.parametrize("n", [0, -1, 2.5, True])
@@ -513,3 +522,28 @@ def test_the_demo_refuses_bad_arguments_in_one_line(argv, message, capsys):
     last = err.strip().splitlines()[-1]
     assert refused.value.code == 2 and "Traceback" not in err
     assert last.startswith("python -m torchpark: error: ") and message in last, err
+
+
+def test_without_a_cxx_compiler_a_compiled_env_warns_once_and_runs_eager(capsys):
+    """torch.compile's CPU backend needs a C++ compiler: where torch finds none (here, a
+    search for one that does not exist), compile_step=True is one warning line and an eager
+    env that steps, and ``python -m torchpark`` says so in one line."""
+    from torch._inductor import config as inductor
+
+    import torchpark.__main__ as demo
+    from torchpark import env as env_module
+
+    with inductor.patch({"cpp.cxx": ("no-such-compiler-for-torchpark",)}):
+        assert not env_module.compiler_found()
+        with pytest.warns(RuntimeWarning, match="runs eager: torch.compile needs a C\\+\\+ "
+                                                "compiler and none was found") as caught:
+            env = ParkingEnv(4, seed=0, compile_step=True)
+        assert len(caught) == 1 and not env.compiled
+        assert env.rollout(3, break_when_any_done=False)["next", "observation"].shape \
+            == (4, 3, 23)
+        demo.main(["--num-envs", "4", "--steps", "2"])
+    out = capsys.readouterr().out
+    assert "no C++ compiler found (install g++ or set CXX): the step runs eager" in out
+    assert "compiling" not in out
+    assert env_module.compiler_found() == bool(shutil.which("g++") or shutil.which("clang++")
+                                               or os.environ.get("CXX"))

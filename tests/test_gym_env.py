@@ -226,3 +226,18 @@ def test_stable_baselines3_ppo_trains_on_the_env():
     obs, _ = env.reset(seed=1)
     action, _ = model.predict(obs, deterministic=True)
     assert env.action_space.contains(action)
+
+
+def test_a_step_after_the_episode_ended_asks_for_a_reset():
+    """Gymnasium leaves stepping an ended episode undefined; here it is refused by name (the
+    car would stay where it collided, and the -200 would be scored again)."""
+    env = gymnasium.make(ENV_ID, max_steps=2).unwrapped
+    with pytest.raises(gymnasium.error.ResetNeeded, match=r"call env\.reset"):
+        env.step(np.zeros(2, np.float32))
+    env.reset(seed=0)
+    results = [env.step(np.zeros(2, np.float32)) for _ in range(2)]
+    assert [r[3] for r in results] == [False, True]  # truncated at max_steps
+    with pytest.raises(gymnasium.error.ResetNeeded, match="terminated or truncated"):
+        env.step(np.zeros(2, np.float32))
+    env.reset()
+    assert env.step(np.zeros(2, np.float32))[3] is False

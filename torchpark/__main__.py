@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import time
+import warnings
 
 import torch
 
@@ -32,17 +33,22 @@ def main(argv: list[str] | None = None) -> None:
 
     try:
         torch.manual_seed(check_seed(args.seed, "--seed"))  # the random actions follow it
-        env = ParkingEnv(args.num_envs, device=args.device, seed=args.seed,
-                         compile_step=not args.eager)
+        with warnings.catch_warnings():  # said below, in one line
+            warnings.simplefilter("ignore", RuntimeWarning)
+            env = ParkingEnv(args.num_envs, device=args.device, seed=args.seed,
+                             compile_step=not args.eager)
         env.occupancy = args.occupancy
     except (ValueError, TypeError, RuntimeError) as err:
         parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
-    if not args.eager:
+    if not args.eager and not env.compiled:
+        print("no C++ compiler found (install g++ or set CXX): the step runs eager, several "
+              "times slower", flush=True)
+    if env.compiled:
         print("compiling the step and the reset (tens of seconds; --eager skips it) ...",
               flush=True)
     start = time.perf_counter()
     env.rollout(3, break_when_any_done=False)  # warm-up: compiles step and reset when asked
-    if not args.eager:
+    if env.compiled:
         print(f"compiled step and reset in {time.perf_counter() - start:.1f} s")
     start = time.perf_counter()
     rollout = env.rollout(args.steps, break_when_any_done=False)  # random actions, auto-reset

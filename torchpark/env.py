@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Sequence
 from functools import partial
 
@@ -67,6 +68,19 @@ def _allow_recompiles() -> None:
                                              4 * _RECOMPILE_LIMIT)
 
 
+def compiler_found() -> bool:
+    """Whether ``torch.compile``'s backend (inductor) finds the C++ compiler it builds its
+    kernels with here (``CXX``, else g++ or clang++ on the path). Without one a compiled step
+    fails at its first call with a long ``InvalidCxxCompiler`` traceback."""
+    try:
+        from torch._inductor import cpp_builder  # torch's own search; private, hence guarded
+
+        cpp_builder.get_cpp_compiler()
+    except Exception:  # InvalidCxxCompiler, or an API that moved: compile nothing
+        return False
+    return True
+
+
 def check_device(device: object, name: str = "device") -> None:
     """ValueError naming ``name`` unless ``device`` is a CPU or CUDA device this machine
     has."""
@@ -110,6 +124,8 @@ class ParkingEnv(EnvBase):
         compile_step: run the step and the batched draw of new episodes through
             ``torch.compile(fullgraph=True)``. Worth it from a few hundred envs on (several times
             faster on CPU); the first step then takes tens of seconds to compile.
+            Without a C++ compiler (:func:`compiler_found`) the env warns once and runs
+            eager; :attr:`compiled` says which.
         compile_kwargs: passed to ``torch.compile``.
         validate_actions: raise on non-finite actions (the state is then left as it was). The
             test runs inside the step; reading its bool is free on CPU, a synchronisation on
@@ -179,6 +195,12 @@ class ParkingEnv(EnvBase):
         reset = partial(aided_new_episodes, world=self._world, cfg=cfg)
         # A held action's steps of dt are one function (one graph when compiled).
         step = hold(step, self.action_repeat)
+        if compile_step and not compiler_found():
+            warnings.warn("ParkingEnv(compile_step=True) runs eager: torch.compile needs a C++ "
+                          "compiler and none was found (install g++ or set CXX)",
+                          RuntimeWarning, stacklevel=2)
+            compile_step = False
+        self.compiled = compile_step  # whether the step and the reset's draw are compiled
         if compile_step:
             _allow_recompiles()
             kwargs = {"fullgraph": True, **(compile_kwargs or {})}
@@ -566,7 +588,11 @@ class ParkingEnv(EnvBase):
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         if not self._started:
             raise RuntimeError("ParkingEnv.step before reset: call env.reset() first")
-        action = tensordict.get("action")
+        action = tensordict.get("action", None)
+        if not isinstance(action, torch.Tensor):
+            raise ValueError(f"the tensordict must hold an 'action' tensor of shape "
+                             f"({self.num_envs}, 2) = (num_envs, [v, delta]), got "
+                             f"{type(action).__name__}: set td['action'] before env.step(td)")
         if action.shape != (self.num_envs, 2):
             raise ValueError(
                 f"action must have shape ({self.num_envs}, 2) = (num_envs, [v, delta]), "

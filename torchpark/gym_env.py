@@ -143,19 +143,26 @@ class ParkingGymEnv(gymnasium.Env):
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.env.config.vehicle.dt)}
         self._action = TensorDict({"action": torch.zeros(1, 2, device=self.env.device)},
                                   batch_size=[1], device=self.env.device)
+        self._ended = True  # no episode yet: reset() first
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         td = _reset_lots(self.env, seed, options)
+        self._ended = False
         return td["observation"][0].cpu().numpy(), self._info(td)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._ended:  # the car would stay where it collided or parked, scored again
+            raise gymnasium.error.ResetNeeded("the episode has ended (terminated or truncated) "
+                                              "or not begun: call env.reset() before step()")
         self._action["action"] = _checked_actions(action, self.action_space, (2,),
                                                   self.env.device)[None] * self._scale
         nxt = self.env.step(self._action)["next"]
-        return (nxt["observation"][0].cpu().numpy(), float(nxt["reward"][0, 0]),
-                bool(nxt["terminated"][0, 0]), bool(nxt["truncated"][0, 0]), self._info(nxt))
+        terminated, truncated = bool(nxt["terminated"][0, 0]), bool(nxt["truncated"][0, 0])
+        self._ended = terminated or truncated
+        return (nxt["observation"][0].cpu().numpy(), float(nxt["reward"][0, 0]), terminated,
+                truncated, self._info(nxt))
 
     def render(self) -> np.ndarray | None:
         if self.render_mode is None:

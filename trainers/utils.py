@@ -9,6 +9,7 @@ less noise where precision pays (the last millimetres of parking)."""
 from __future__ import annotations
 
 import math
+import warnings
 
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule
@@ -40,6 +41,12 @@ from torchpark.aids.step import BRAKED
 from trainers.config import ModelConfig, TrainConfig, env_configs
 
 NORMALISED = "observation_norm"  # the normalised observation the networks read
+
+# torchrl warns that VecNormV2 on a batched env is experimental each time one is attached:
+# ours is deliberate (one set of statistics over the batch, reduce_batch_dims=True, merged
+# exactly across ranks and workers, tests/test_trainer.py and tests/test_distributed.py).
+warnings.filterwarnings("ignore", category=UserWarning,
+                        message="Support of VecNormV2 for containers with non-empty batch-size")
 
 
 class StateIndependentScale(nn.Module):
