@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from tensordict import TensorDict
+from tqdm import tqdm
 
 from tests.reference import ReferenceParkingEnv  # run from the repository root (python -m)
 from torchpark import ParkingEnv
@@ -231,7 +232,13 @@ def measure(num_envs: int, device: str, mode: str, paths: list[str], args
                        validate=not args.no_validate) if env_paths else None
     except Exception as err:
         return {path: {"error": describe(err)} for path in expand_paths(paths)}
-    for path in env_paths:
+    # The first call of each path compiles (tens of seconds on CPU): the bar says where it is.
+    bar = tqdm([*env_paths, *(["collector"] if "collector" in paths else [])],
+               desc=f"N = {num_envs:,} {mode}", unit="path", leave=False)
+    for path in bar:
+        bar.set_postfix_str(path)
+        if path == "collector":
+            break
         try:
             call = CALLS[path](env, args)
             if path.startswith("reset"):
@@ -253,6 +260,7 @@ def measure(num_envs: int, device: str, mode: str, paths: list[str], args
             results["collector"] = timed(call, frames, device, max(1, args.calls // 8), args)
         except Exception as err:
             results["collector"] = {"error": describe(err)}
+    bar.close()
     return results
 
 

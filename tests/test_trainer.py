@@ -278,6 +278,19 @@ def test_evaluation_puts_a_policy_under_other_aids(smoke_run, tmp_path):
         "agent: hybrid: policy + emergency brake + docking law, added at evaluation")
 
 
+def test_the_evaluators_output_fits_a_terminal(smoke_run, tmp_path, capsys):
+    """The command line prints what the agent is made of and the main columns within 100
+    columns; the full table goes to the files."""
+    _, final = smoke_run
+    evaluate_main([str(final), "--episodes", "2", "--out", str(tmp_path), "--videos", "none"])
+    out = capsys.readouterr().out.splitlines()
+    assert max(map(len, out)) <= 100
+    assert out[0].startswith("agent: policy alone") and "C < 4e-4" in out[-8]
+    assert [line.split()[0] for line in out[-7:-1]] == ["0%", "20%", "40%", "60%", "80%", "90%"]
+    assert out[-1] == f"every column: {tmp_path / 'evaluation.md'} (and .csv)"
+    assert (tmp_path / "evaluation.md").read_text().count("|") > 17 * 7  # all 17 columns
+
+
 def test_a_sampled_evaluation_is_seeded_and_says_so(smoke_run, tmp_path, capsys):
     """--sample S: the actions are drawn from the policy's distribution, torch seeded with S
     at each level: the same S gives the same row, whichever levels ran before it."""
@@ -583,8 +596,9 @@ def test_the_evaluator_prints_its_table_before_a_full_disk_stops_its_files(smoke
               "none"])
     """)
     assert limited.returncode == 2 and "Traceback" not in limited.stderr
-    assert "| occupancy | episodes | success |" in limited.stdout
-    assert len(limited.stdout.strip().splitlines()) == 10  # caption, blank, header, rule, 6
+    lines = limited.stdout.strip().splitlines()
+    assert lines[-7].split()[:3] == ["occupancy", "C", "<"]  # the summary's heading, 6 rows
+    assert [line.split()[0] for line in lines[-6:]] == ["0%", "20%", "40%", "60%", "80%", "90%"]
     assert limited.stderr.strip().splitlines()[-1] == (
         f"python -m trainers.evaluate: error: cannot write "
         f"{str(tmp_path / 'evaluation.csv')!r}: File too large")

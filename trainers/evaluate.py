@@ -28,6 +28,7 @@ beside.
 from __future__ import annotations
 
 import argparse
+import textwrap
 from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
@@ -270,6 +271,30 @@ def to_markdown(rows: list[dict[str, float]]) -> str:
     return "\n".join(lines)
 
 
+# What the command line prints per level (the full table is in evaluation.md / .csv), and
+# the headings it prints them under: 10 columns of 10 characters.
+SUMMARY = {"occupancy": "occupancy", "success": "C < 4e-4", "success_4e-3": "4e-3",
+           "success_4e-2": "4e-2", "collision": "collision", "timeout": "timeout",
+           "freezing": "freezing", "braked": "braked", "docked": "docked",
+           "paper_success": "Table 2"}
+WIDTH = 100
+
+
+def summary(rows: list[dict[str, float]]) -> str:
+    """The rows as a terminal reads them, within WIDTH columns: what the agent is made of
+    (wrapped) over the SUMMARY columns."""
+    lines = []
+    if rows and all(c in rows[0] for c in COMPOSITION):
+        made_of = "; ".join(f"{c.replace('_', ' ')}: {rows[0][c]}" for c in COMPOSITION)
+        lines += [*textwrap.wrap(made_of, WIDTH), ""]
+    width = WIDTH // len(SUMMARY)
+    lines.append("".join(f"{name:>{width}}" for name in SUMMARY.values()))
+    for row in rows:
+        lines.append("".join(f"{row[c]:>{width}.0%}" if c == "occupancy"
+                             else f"{row[c]:>{width}.3g}" for c in SUMMARY))
+    return "\n".join(lines)
+
+
 def write_tables(rows: list[dict], out: Path) -> str:
     """Write ``evaluation.md`` and ``evaluation.csv`` (COLUMNS) into ``out``, each whole or
     not at all; returns the Markdown."""
@@ -329,8 +354,9 @@ def main(argv: list[str] | None = None) -> None:
                                  f"pass --out another directory, or --overwrite to replace "
                                  f"them")
             rows = evaluate_agent(agent, args.episodes, seed=args.seed, sample=args.sample)
-            print(to_markdown(rows), flush=True)  # the table first: whatever the disk says
+            print(summary(rows), flush=True)  # the table first: whatever the disk says
             write_tables(rows, out)
+            print(f"every column: {out / 'evaluation.md'} (and .csv)")
             if videos is not None:
                 record_rollouts(agent, out, videos, seed=args.seed, sample=args.sample)
     except (ValueError, OSError) as err:

@@ -47,7 +47,7 @@ from trainers.evaluate import (
     Agent,
     composition,
     evaluate_agent,
-    to_markdown,
+    summary,
     write_tables,
 )
 
@@ -247,7 +247,7 @@ def run(args: argparse.Namespace) -> None:
             if any(t.exists() for t in tables) and not args.overwrite:
                 raise ValueError(f"{args.out} holds an evaluation: --overwrite to replace it")
             rows = evaluate(args.out, args.episodes, seed=1)
-            print(to_markdown(rows), flush=True)  # the table first: whatever the disk says
+            print(summary(rows), flush=True)  # the table first: whatever the disk says
             write_tables(rows, args.out)
             return
         torch.set_num_threads(1)  # one core: the machine has two
