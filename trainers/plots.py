@@ -125,6 +125,7 @@ def plot_training_curves(scalars: Scalars, window: int = 10) -> Figure:
         ax.set_ylabel(series[0][1] if len(series) == 1 else "rate of ended episodes")
         if ylim:
             ax.set_ylim(*ylim)
+        if ylim and ax.get_legend_handles_labels()[0]:  # a run may have logged none of them
             ax.legend(loc="center left", fontsize=8)
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("frames")
