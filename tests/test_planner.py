@@ -5,14 +5,15 @@ by name."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
 import torch
 
 from tests.conftest import polygon
-from torchpark import DockingConfig, VehicleConfig
-from torchpark.experts import PlannerConfig
+from torchpark import DockingConfig, ParkingEnv, VehicleConfig
+from torchpark.experts import ExpertConfig, PlannerConfig, PlannerExpert
 from torchpark.experts.planner import (
     arcs,
     build_planner,
@@ -177,3 +178,37 @@ def test_the_laws_funnel_is_the_target_unless_widened():
     assert (wide.gain, wide.settle) == (9.0, 0.05)  # the rest of the law is kept
     only = PlannerConfig(law_lateral=2.0).law_funnel(law)
     assert (only.reach, only.lateral, only.heading) == (7.0, 2.0, 0.25)
+
+
+def test_the_expert_is_evaluated_like_a_checkpoint(tmp_path, capsys):
+    """PlannerExpert drives an env built with its aids (any other is refused by name), and
+    the evaluator runs it on its lots; its command line refuses what does not apply."""
+    from trainers.evaluate import (
+        Agent,
+        composition,
+        evaluate_agent,
+        load_expert,
+        paper_lots,
+    )
+    from trainers.evaluate import main as evaluate_main
+
+    config = ExpertConfig(planner=dataclasses.replace(COARSE, law_reach=8.0, law_lateral=2.0,
+                                                      law_heading=1.0))
+    with pytest.raises(ValueError, match="env must be built with the expert's aids"):
+        PlannerExpert(ParkingEnv(2, seed=0), config)
+    agent = Agent(paper_lots(config.aids()), lambda env: PlannerExpert(env, config), 300,
+                  composition(config.aids(), "the planner", expert=True))
+    rows = evaluate_agent(agent, episodes=4, levels=(0.0,))
+    assert rows[0]["agent"] == "hand-written: approach planner + emergency brake + docking law"
+    assert rows[0]["collision"] == 0.0 and 0 <= rows[0]["success"] <= 1
+    with pytest.raises(ValueError, match=r"--expert must be one of \['planner'\]"):
+        load_expert("oracle")
+    for argv, message in ((["--expert", "planner"], "--expert needs --out DIR"),
+                          (["x.pt", "--expert", "planner", "--out", str(tmp_path)],
+                           "give a checkpoint or --expert NAME"),
+                          (["--expert", "planner", "--out", str(tmp_path), "--sample", "1"],
+                           "--aids and --sample apply to a checkpoint's policy")):
+        with pytest.raises(SystemExit):
+            evaluate_main(argv)
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "evaluation.md").exists()

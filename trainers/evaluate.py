@@ -200,6 +200,17 @@ def load_agent(path: str, device: str | None = None, aids: list[str] | None = No
                     sampled=sample))
 
 
+def paper_lots(aids: AidsConfig | None = None, device: str = "cpu"
+               ) -> Callable[[float, int, int], TransformedEnv]:
+    """``make_env`` of an agent that reads the paper's observation as it is: ``episodes``
+    lots of the paper's task at ``occupancy`` from ``seed``, with ``aids`` around it."""
+    def make_env(occupancy: float, episodes: int, seed: int) -> TransformedEnv:
+        base = ParkingEnv(episodes, device=device, seed=seed, aids=aids)
+        base.occupancy = occupancy
+        return TransformedEnv(base)
+    return make_env
+
+
 def load_expert(name: str, device: str = "cpu") -> Agent:
     """A hand-written agent (EXPERTS) on ``device``: the paper's env with the expert's aids,
     its policy reading the env's state (:class:`torchpark.experts.PlannerExpert`)."""
@@ -207,16 +218,9 @@ def load_expert(name: str, device: str = "cpu") -> Agent:
         raise ValueError(f"--expert must be one of {list(EXPERTS)}, got {name!r}")
     check_device(device, "--device")
     config = ExpertConfig()
-    parking = ParkingConfig()
-
-    def make_env(occupancy: float, episodes: int, seed: int) -> TransformedEnv:
-        base = ParkingEnv(episodes, device=device, seed=seed, config=parking,
-                          aids=config.aids())
-        base.occupancy = occupancy
-        return TransformedEnv(base)
-
-    return Agent(make_env, lambda env: PlannerExpert(env, config), parking.max_steps,
-                 composition(config.aids(), EXPERTS[name], expert=True))
+    return Agent(paper_lots(config.aids(), device), lambda env: PlannerExpert(env, config),
+                 ParkingConfig().max_steps, composition(config.aids(), EXPERTS[name],
+                                                        expert=True))
 
 
 def evaluate_agent(agent: Agent, episodes: int, levels=PAPER_LEVELS, seed: int = 1,

@@ -47,6 +47,7 @@ from trainers.evaluate import (
     Agent,
     composition,
     evaluate_agent,
+    paper_lots,
     summary,
     write_tables,
 )
@@ -187,11 +188,6 @@ def evaluate(out: Path, episodes: int, seed: int) -> list[dict]:
     policy = (f"PPO (Stable-Baselines3 defaults, the paper's recipe), "
               f"{model.num_timesteps:,} frames")
 
-    def make_env(occupancy: float, episodes: int, seed: int) -> TransformedEnv:
-        env = ParkingEnv(episodes, seed=seed)
-        env.occupancy = occupancy
-        return TransformedEnv(env)
-
     def drive(env: TransformedEnv):
         high = env.action_spec.space.high[0]  # the Gymnasium env's [-1, 1] actions, scaled
 
@@ -200,7 +196,7 @@ def evaluate(out: Path, episodes: int, seed: int) -> list[dict]:
             return td.set("action", torch.as_tensor(action, dtype=torch.float32) * high)
         return policy
 
-    agent = Agent(make_env, drive, ParkingConfig().max_steps, composition(None, policy))
+    agent = Agent(paper_lots(), drive, ParkingConfig().max_steps, composition(None, policy))
     return evaluate_agent(agent, episodes, seed=seed)
 
 
