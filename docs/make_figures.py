@@ -1,6 +1,6 @@
 """Regenerate the README's pictures with the project's own code.
 
-    python docs/make_figures.py [--checkpoint results/fast/checkpoint_final.pt]
+    python -m docs.make_figures [--checkpoint results/fast/checkpoint_final.pt]
 
 docs/lots.png: one lot at 0, 50 and 90 % occupancy (same goal and start, so only the parked
 cars differ). docs/rollout.gif: one episode of the committed policy (deterministic) at 40 %
@@ -33,8 +33,7 @@ from torchpark.aids.docking import error_from_goal
 from torchpark.media.recording import record_video
 from torchpark.media.rendering import picture_grid
 from torchpark.sim.reward import parking_cost
-from trainers.checkpoint import load_trained
-from trainers.utils import make_eval_env, make_policy
+from trainers.agent import load_agent
 
 DOCS = Path(__file__).resolve().parent
 
@@ -50,11 +49,10 @@ def lots_picture(path: Path) -> None:
 
 
 def rollout_animation(checkpoint: str, path: Path, occupancy: float = 0.4) -> None:
-    cfg, saved = load_trained(checkpoint)
-    actor = make_policy(cfg, saved["actor"])
-    env = make_eval_env(cfg, saved["obs_norm"], occupancy, num_envs=1, seed=1)
+    agent = load_agent(checkpoint)
+    env = agent.make_env(num_envs=1, occupancy=occupancy, seed=1)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        record_video(env, actor, path, max_steps=300, fps=20)
+        record_video(env, agent.policy, path, max_steps=300, fps=20)
 
 
 def docking_picture(path: Path, episodes: int = 24, steps: int = 1000,

@@ -22,6 +22,7 @@ from torchpark.experts import PlannerConfig
 from torchpark.experts.planner import plan_control
 from torchpark.transforms.actions import PowerActionMap, gear_inverse, power_map_inverse
 from torchpark.transforms.features import GoalFrameFeatures
+from trainers.agent import load_agent
 from trainers.checkpoint import load_trained
 from trainers.config import env_configs, load_config
 from trainers.distill import (
@@ -35,12 +36,10 @@ from trainers.distill import (
     main,
     student_config,
 )
-from trainers.evaluate import load_agent
+from trainers.evaluate import checkpoint_agent
 from trainers.utils import (
     build_models,
     make_base_env,
-    make_eval_env,
-    make_policy,
     make_ppo_models,
     policy_input,
 )
@@ -217,13 +216,14 @@ def test_a_run_writes_a_policy_alone_the_evaluator_reads(teacher_path, tmp_path,
     assert cfg.agent.aids.brake is None and cfg.agent.aids.docking is None
     assert cfg.agent.aids.action_repeat == 1 and cfg.agent.action_exponents == [3.0, 1.0]
     assert cfg.agent.gear_head
-    made_of = load_agent(str(out / "checkpoint_final.pt")).made_of
+    made_of = checkpoint_agent(str(out / "checkpoint_final.pt")).made_of
     assert made_of["agent"] == "policy alone"
     assert made_of["policy"].startswith("distilled (gear head) from the approach planner")
     assert checkpoint["frames"] == 2 * 6 * 20 * 8
-    env = make_eval_env(cfg, checkpoint["obs_norm"], 0.9, 4, seed=0)
+    agent = load_agent(str(out / "checkpoint_final.pt"))
+    env = agent.make_env(4, 0.9, seed=0)
     assert env.action_spec.shape == (4, 5)
-    env.rollout(3, make_policy(cfg, checkpoint["actor"]))
+    env.rollout(3, agent.policy)
     rows = (out / "dagger.csv").read_text().splitlines()
     assert len(rows) == 3 and rows[0].startswith("iteration,frames,approach_states")
     # checkpoint_best.pt: the iteration that scored best on the checks (the later on a tie)
@@ -258,8 +258,8 @@ def test_a_student_with_the_clearance_features_and_position_reads_them_everywher
         "distilled (gear head, clearance features, position) from")
     loc = checkpoint["obs_norm"]["_extra_state"]["loc.-|-.observation_policy"]
     assert loc.shape[-1] == 23 + 7 + 16 + 2
-    env = make_eval_env(cfg, checkpoint["obs_norm"], 0.9, 2, seed=0)
-    env.rollout(3, make_policy(cfg, checkpoint["actor"]))
+    agent = load_agent(str(out / "checkpoint_final.pt"))
+    agent.make_env(2, 0.9, seed=0).rollout(3, agent.policy)
 
 
 def test_a_gear_head_is_scored_on_its_gear_and_that_gears_pair_only():

@@ -11,7 +11,7 @@ from gymnasium.utils.env_checker import check_env
 from gymnasium.wrappers.vector import RecordEpisodeStatistics
 
 import torchpark
-from torchpark import ENV_ID, ParkingGymEnv, ParkingVectorEnv
+from torchpark import ENV_ID, ParkingGymEnv, ParkingVectorEnv, RewardConfig
 
 
 def scripted(steps: int) -> np.ndarray:
@@ -58,7 +58,7 @@ def test_gymnasium_and_sb3_checkers_pass_without_a_warning():
 
 
 def test_single_env_episode_ends_as_gymnasium_defines():
-    env = gymnasium.make(ENV_ID, max_steps=30, occupancy=0.0)
+    env = gymnasium.make(ENV_ID, max_episode_steps=30, occupancy=0.0)
     env.reset(seed=4)
     ends = []
     for _ in range(30):
@@ -71,8 +71,17 @@ def test_single_env_episode_ends_as_gymnasium_defines():
 
 
 def test_make_kwargs_reach_the_batched_env():
-    env = gymnasium.make(ENV_ID, occupancy=0.9, max_steps=7, device="cpu").unwrapped
-    assert env.env.occupancy == 0.9 and env.env.config.max_steps == 7
+    env = gymnasium.make(ENV_ID, occupancy=0.9, reward=RewardConfig(collision_penalty=-1e3),
+                         device="cpu")
+    assert env.spec.max_episode_steps == 1000  # the paper's limit, Gymnasium's TimeLimit
+    env = env.unwrapped
+    assert env.env.occupancy == 0.9 and env.env.config.reward.collision_penalty == -1e3
+    assert ParkingGymEnv(max_episode_steps=7).env.config.max_steps == 7  # built directly
+    vec = gymnasium.make_vec(ENV_ID, num_envs=2, max_episode_steps=9)
+    assert vec.env.config.max_steps == 9
+    assert gymnasium.make_vec(ENV_ID, num_envs=2).env.config.max_steps == 1000
+    with pytest.raises(TypeError, match="max_episode_steps"):
+        gymnasium.make(ENV_ID, max_steps=7)  # ParkingConfig's name: the spec would not say it
     _, info = env.reset(seed=1)
     assert info["occupancy"] == pytest.approx(0.9)
     _, info = env.reset(options={"occupancy": 0.2})
@@ -118,8 +127,8 @@ def test_make_vec_is_one_batched_env():
 def test_vector_autoreset_matches_single_env_reset_by_hand():
     """SAME_STEP: the step that ends an episode returns the next lot's first observation and
     keeps the last one in info["final_obs"]; N = 1 vector == single env reset by hand."""
-    vec = gymnasium.make_vec(ENV_ID, num_envs=1, max_steps=15, occupancy=0.5)
-    single = gymnasium.make(ENV_ID, max_steps=15, occupancy=0.5)
+    vec = gymnasium.make_vec(ENV_ID, num_envs=1, max_episode_steps=15, occupancy=0.5)
+    single = gymnasium.make(ENV_ID, max_episode_steps=15, occupancy=0.5)
     v_obs, _ = vec.reset(seed=9)
     s_obs, _ = single.reset(seed=9)
     ends = 0
@@ -140,7 +149,7 @@ def test_vector_autoreset_matches_single_env_reset_by_hand():
 
 
 def test_vector_env_works_with_gymnasium_vector_wrappers():
-    env = RecordEpisodeStatistics(gymnasium.make_vec(ENV_ID, num_envs=8, max_steps=10))
+    env = RecordEpisodeStatistics(gymnasium.make_vec(ENV_ID, num_envs=8, max_episode_steps=10))
     env.reset(seed=0)
     finished = 0
     for _ in range(25):
@@ -203,7 +212,7 @@ def test_record_video_wrapper_writes_an_episode(tmp_path):
     from gymnasium.wrappers import RecordVideo  # writes with moviepy, a dev dependency
 
     folder = tmp_path / "videos"
-    env = RecordVideo(gymnasium.make(ENV_ID, render_mode="rgb_array", max_steps=20),
+    env = RecordVideo(gymnasium.make(ENV_ID, render_mode="rgb_array", max_episode_steps=20),
                       video_folder=str(folder), episode_trigger=lambda episode: True,
                       disable_logger=True)
     env.reset(seed=0)
@@ -219,7 +228,7 @@ def test_stable_baselines3_ppo_trains_on_the_env():
     """The paper's own tool chain: SB3 PPO on torchpark/Parking-v0 for a few thousand steps."""
     from stable_baselines3 import PPO
 
-    env = gymnasium.make(ENV_ID, max_steps=200)
+    env = gymnasium.make(ENV_ID, max_episode_steps=200)
     model = PPO("MlpPolicy", env, n_steps=512, batch_size=128, n_epochs=2, seed=0, device="cpu")
     model.learn(total_timesteps=2048)
     assert model.num_timesteps == 2048
@@ -231,12 +240,12 @@ def test_stable_baselines3_ppo_trains_on_the_env():
 def test_a_step_after_the_episode_ended_asks_for_a_reset():
     """Gymnasium leaves stepping an ended episode undefined; here it is refused by name (the
     car would stay where it collided, and the -200 would be scored again)."""
-    env = gymnasium.make(ENV_ID, max_steps=2).unwrapped
+    env = ParkingGymEnv(max_episode_steps=2)
     with pytest.raises(gymnasium.error.ResetNeeded, match=r"call env\.reset"):
         env.step(np.zeros(2, np.float32))
     env.reset(seed=0)
     results = [env.step(np.zeros(2, np.float32)) for _ in range(2)]
-    assert [r[3] for r in results] == [False, True]  # truncated at max_steps
+    assert [r[3] for r in results] == [False, True]  # truncated at max_episode_steps
     with pytest.raises(gymnasium.error.ResetNeeded, match="terminated or truncated"):
         env.step(np.zeros(2, np.float32))
     env.reset()

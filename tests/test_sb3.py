@@ -25,7 +25,8 @@ def test_the_vec_env_is_the_gymnasium_vector_env_in_sb3s_api():
     actions; a row that ended carries its last observation, whether it only ran out of
     steps, and whether it succeeded; the other rows' infos are empty."""
     n = 8
-    sb3, gym = ParkingVecEnv(n, seed=3, max_steps=6), ParkingVectorEnv(n, seed=3, max_steps=6)
+    sb3 = ParkingVecEnv(n, seed=3, max_episode_steps=6)
+    gym = ParkingVectorEnv(n, seed=3, max_episode_steps=6)
     assert isinstance(sb3, VecEnv) and sb3.num_envs == n
     assert sb3.observation_space == gym.single_observation_space
     assert sb3.action_space == gym.single_action_space
@@ -78,7 +79,8 @@ def test_the_batch_answers_for_every_env():
 
 
 def test_sb3s_wrappers_and_ppo_run_on_it():
-    env = VecMonitor(VecCheckNan(ParkingVecEnv(16, seed=0, max_steps=20), raise_exception=True))
+    env = VecMonitor(VecCheckNan(ParkingVecEnv(16, seed=0, max_episode_steps=20),
+                                 raise_exception=True))
     model = PPO("MlpPolicy", env, n_steps=32, batch_size=64, n_epochs=1, seed=0, device="cpu")
     model.learn(1024)
     assert model.num_timesteps == 1024

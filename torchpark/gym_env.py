@@ -5,8 +5,12 @@
 Keyword arguments of ``make``/``make_vec``: ``occupancy``, ``device``, ``seed`` (the initial
 seed; ``reset(seed=...)`` reseeds), ``compile_step``, ``physical_actions``, ``config`` (a
 :class:`ParkingConfig`), ``aids`` (an :class:`AidsConfig`; None, the paper's env, by default)
-and any :class:`ParkingConfig` field (``max_steps=500``,
-``reward=RewardConfig(...)``), which replaces that field of ``config``.
+and any :class:`ParkingConfig` field (``reward=RewardConfig(...)``), which replaces that
+field of ``config``. The episode limit is Gymnasium's ``max_episode_steps`` (registered as
+the paper's 1,000 steps, which ``spec.max_episode_steps`` says): ``make`` puts Gymnasium's
+``TimeLimit`` there, ``make_vec`` passes it to the vector env, and either class built
+directly takes it as its own limit (``ParkingConfig.max_steps``, which is not a keyword
+here, so that the spec and the env cannot disagree).
 
 Actions: by default the normalised Box [-1, 1]^2 that Gymnasium's ``check_env`` and
 Stable-Baselines3 ask for, mapped linearly onto the paper's (v, delta) =
@@ -30,20 +34,31 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from tensordict import TensorDict, TensorDictBase
 
 from torchpark.aids.config import AidsConfig
+from torchpark.aids.step import BRAKED, DOCKING_ENGAGED, INTERVENTIONS
 from torchpark.config import ParkingConfig, check_flag
 from torchpark.env import ParkingEnv
 from torchpark.sim.observation import NAV_DIM
 
 ENV_ID = "torchpark/Parking-v0"
+GOAL_ENV_ID = "torchpark/ParkingGoal-v0"  # torchpark.goal_env
 RENDER_MODES = ["rgb_array"]
 INFO_KEYS = ("success", "collision", "occupancy")
+# What the aids emit, in the info when they are on: the brake's flag and count, the docking
+# law's flag, the rear axle's (x, y) (AidsConfig.observe_position).
+AID_INFO_KEYS = (BRAKED, INTERVENTIONS, DOCKING_ENGAGED, "position")
 
 
 def _make_batched(num_envs: int, occupancy: float | None, device: torch.device | str,
                   seed: int | None, compile_step: bool, config: ParkingConfig | None,
-                  aids: AidsConfig | None, fields: dict[str, Any]) -> ParkingEnv:
+                  aids: AidsConfig | None, max_episode_steps: int | None,
+                  fields: dict[str, Any]) -> ParkingEnv:
     config = config if config is not None else ParkingConfig()
     names = {f.name for f in dataclasses.fields(ParkingConfig)}
+    if "max_steps" in fields:
+        raise TypeError("the episode limit is Gymnasium's max_episode_steps (not max_steps): "
+                        "gymnasium.make(..., max_episode_steps=N)")
+    if max_episode_steps is not None:
+        fields["max_steps"] = max_episode_steps
     unknown = sorted(set(fields) - names)
     if unknown:
         raise TypeError(f"unknown keyword arguments {unknown}: expected occupancy, device, "
@@ -115,8 +130,12 @@ def _reset_lots(env: ParkingEnv, seed: int | None, options: dict[str, Any] | Non
 
 
 def _numpy_info(td: TensorDictBase) -> dict[str, np.ndarray]:
-    """success, collision (bool) and occupancy (float32), each (N,)."""
-    return {key: td[key][:, 0].cpu().numpy() for key in INFO_KEYS}
+    """success, collision (bool) and occupancy (float32), each (N,), and what the aids emit
+    when they are on (AID_INFO_KEYS: (N,) or (N, 2) for the position)."""
+    info = {key: td[key][:, 0].cpu().numpy() for key in INFO_KEYS}
+    aided = {key: td[key] for key in AID_INFO_KEYS if key in td.keys()}
+    return {**info, **{key: (t[:, 0] if key != "position" else t).cpu().numpy()
+                       for key, t in aided.items()}}
 
 
 class ParkingGymEnv(gymnasium.Env):
@@ -124,8 +143,12 @@ class ParkingGymEnv(gymnasium.Env):
 
     ``terminated`` is a collision or a success; ``truncated`` is the step limit
     (``ParkingConfig.max_steps``, 1000) without either. ``info`` holds ``success``,
-    ``collision`` (bool) and ``occupancy`` (float, the occupancy the lot was drawn with).
+    ``collision`` (bool) and ``occupancy`` (float, the occupancy the lot was drawn with), and
+    with aids on what they emit (``AID_INFO_KEYS``: ``braked``, ``interventions``,
+    ``docking_engaged``, ``position``), which an agent trained with them may read.
     ``reset(options={"occupancy": p})`` changes the occupancy of this and later lots.
+    ``gymnasium.make`` wraps it in Gymnasium's ``TimeLimit`` at ``spec.max_episode_steps``
+    (1,000, the env's own limit; ``max_episode_steps=N`` changes it).
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": RENDER_MODES, "render_fps": 10}
@@ -134,10 +157,10 @@ class ParkingGymEnv(gymnasium.Env):
                  device: torch.device | str = "cpu", seed: int | None = None,
                  compile_step: bool = False, physical_actions: bool = False,
                  config: ParkingConfig | None = None, aids: AidsConfig | None = None,
-                 **fields: Any) -> None:
+                 max_episode_steps: int | None = None, **fields: Any) -> None:
         self.render_mode = _check_render_mode(render_mode)
         self.env = _make_batched(1, occupancy, device, seed, compile_step, config, aids,
-                                 fields)
+                                 max_episode_steps, fields)
         self.observation_space, self.action_space, self._scale = _spaces(
             self.env, check_flag(physical_actions, "physical_actions"))
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.env.config.vehicle.dt)}
@@ -150,7 +173,7 @@ class ParkingGymEnv(gymnasium.Env):
         super().reset(seed=seed)
         td = _reset_lots(self.env, seed, options)
         self._ended = False
-        return td["observation"][0].cpu().numpy(), self._info(td)
+        return self._observe(td), self._info(td)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._ended:  # the car would stay where it collided or parked, scored again
@@ -161,8 +184,8 @@ class ParkingGymEnv(gymnasium.Env):
         nxt = self.env.step(self._action)["next"]
         terminated, truncated = bool(nxt["terminated"][0, 0]), bool(nxt["truncated"][0, 0])
         self._ended = terminated or truncated
-        return (nxt["observation"][0].cpu().numpy(), float(nxt["reward"][0, 0]), terminated,
-                truncated, self._info(nxt))
+        return (self._observe(nxt), float(nxt["reward"][0, 0]), terminated, truncated,
+                self._info(nxt))
 
     def render(self) -> np.ndarray | None:
         if self.render_mode is None:
@@ -171,11 +194,15 @@ class ParkingGymEnv(gymnasium.Env):
             return None
         return self.env.render(0)
 
+    def _observe(self, td: TensorDictBase) -> Any:
+        """The observation Gymnasium returns, from the step's (or reset's) output."""
+        return td["observation"][0].cpu().numpy()
+
     @staticmethod
     def _info(td: TensorDictBase) -> dict[str, Any]:
-        info = _numpy_info(td)
-        return {"success": bool(info["success"][0]), "collision": bool(info["collision"][0]),
-                "occupancy": float(info["occupancy"][0])}
+        info = {key: value[0] for key, value in _numpy_info(td).items()}
+        return {**info, "success": bool(info["success"]), "collision": bool(info["collision"]),
+                "occupancy": float(info["occupancy"])}
 
 
 class ParkingVectorEnv(VectorEnv):
@@ -187,6 +214,8 @@ class ParkingVectorEnv(VectorEnv):
     (rows marked by ``info["_final_obs"]``), as Gymnasium's ``SyncVectorEnv`` does in that
     mode. ``info`` also holds ``success``, ``collision`` and ``occupancy`` arrays (N,).
     ``render()`` returns a tuple of the first ``render_envs`` lots' pictures.
+    ``max_episode_steps`` (which ``make_vec`` passes: 1,000 unless given) is the episodes'
+    step limit.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": RENDER_MODES, "render_fps": 10,
@@ -197,10 +226,10 @@ class ParkingVectorEnv(VectorEnv):
                  seed: int | None = None, compile_step: bool = False,
                  physical_actions: bool = False, config: ParkingConfig | None = None,
                  aids: AidsConfig | None = None, render_envs: int = 16,
-                 **fields: Any) -> None:
+                 max_episode_steps: int | None = None, **fields: Any) -> None:
         self.render_mode = _check_render_mode(render_mode)
         self.env = _make_batched(num_envs, occupancy, device, seed, compile_step,
-                                 config, aids, fields)
+                                 config, aids, max_episode_steps, fields)
         self.num_envs = num_envs
         self.render_envs = min(render_envs, num_envs)
         self.single_observation_space, self.single_action_space, self._scale = _spaces(
@@ -252,7 +281,14 @@ class ParkingVectorEnv(VectorEnv):
 
 
 def register() -> None:
-    """Register ``torchpark/Parking-v0`` (done on ``import torchpark``; idempotent)."""
+    """Register ``torchpark/Parking-v0`` and the goal-conditioned ``torchpark/ParkingGoal-v0``
+    (:mod:`torchpark.goal_env`), done on ``import torchpark``; idempotent. Their
+    ``spec.max_episode_steps`` is the paper's 1,000 steps (``ParkingConfig.max_steps``)."""
+    steps = ParkingConfig().max_steps
     if ENV_ID not in gymnasium.registry:
         gymnasium.register(id=ENV_ID, entry_point="torchpark.gym_env:ParkingGymEnv",
-                           vector_entry_point="torchpark.gym_env:ParkingVectorEnv")
+                           vector_entry_point="torchpark.gym_env:ParkingVectorEnv",
+                           max_episode_steps=steps)
+    if GOAL_ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=GOAL_ENV_ID, entry_point="torchpark.goal_env:ParkingGoalEnv",
+                           max_episode_steps=steps)

@@ -28,13 +28,13 @@ beside.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import textwrap
 from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
 
 import torch
-from torch.utils._pytree import tree_map_only
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -45,9 +45,8 @@ from torchpark.experts import ExpertConfig, PlannerExpert
 from torchpark.files import locked, write_csv, write_text
 from torchpark.media.recording import record_video
 from torchpark.runner import Episodes, run_episodes
-from trainers.checkpoint import load_trained, load_weights
-from trainers.config import TrainConfig, check_agent, check_device, env_configs, override
-from trainers.utils import build_models, make_eval_env
+from trainers.agent import load_agent
+from trainers.config import TrainConfig, check_agent, check_device, override
 
 # Table 2 of the paper: success rate per curriculum phase (occupancy level).
 PAPER_SUCCESS = dict(zip(PAPER_LEVELS, (0.20, 0.52, 0.65, 0.64, 0.59, 0.62), strict=True))
@@ -173,31 +172,21 @@ def level_row(run: Episodes, occupancy: float) -> dict[str, float]:
     }
 
 
-def load_agent(path: str, device: str | None = None, aids: list[str] | None = None,
-               sample: int | None = None) -> Agent:
-    """The checkpoint's agent (see :func:`evaluate` for the arguments); ValueError naming
-    the file or the argument that does not fit."""
+def checkpoint_agent(path: str, device: str | None = None, aids: list[str] | None = None,
+                     sample: int | None = None) -> Agent:
+    """The checkpoint's agent (:func:`trainers.agent.load_agent`) as the evaluator runs it
+    (see :func:`evaluate` for the arguments); ValueError naming the file or the argument that
+    does not fit."""
     if sample is not None and (not is_integer(sample) or not 0 <= sample < SEED_LIMIT):
         raise ValueError(f"sample must be None or a torch seed (an int in [0, 2**32)), got "
                          f"{sample!r}")
-    cfg, checkpoint = load_trained(path)
-    if aids:
-        cfg = with_aids(cfg, aids)
-    if device is not None:
-        cfg.env.device = device
-    check_device(cfg.env.device, "the evaluation's device (the training's unless --device)")
-    checkpoint = tree_map_only(torch.Tensor, lambda t: t.to(cfg.env.device), checkpoint)
-    actor, _ = build_models(cfg)
-    load_weights(actor, checkpoint["actor"], path, "actor")
-    actor = actor.to(cfg.env.device)
-    policy = checkpoint.get("trained_by") or (
-        f"PPO ({cfg.logger.exp_name} preset run), {checkpoint['frames']:,} frames")
+    trained = load_agent(path, device)
+    if aids:  # around the network: its input and output stay as trained
+        trained = dataclasses.replace(trained, config=with_aids(trained.config, aids))
     return Agent(
-        lambda occupancy, episodes, seed: make_eval_env(cfg, checkpoint["obs_norm"], occupancy,
-                                                        episodes, seed),
-        lambda env: actor, cfg.env.task.max_steps,
-        composition(env_configs(cfg, training=False)[1], policy, added=bool(aids),
-                    sampled=sample))
+        lambda occupancy, episodes, seed: trained.make_env(episodes, occupancy, seed),
+        lambda env: trained.policy, trained.config.env.task.max_steps,
+        composition(trained.aids, trained.trained_by, added=bool(aids), sampled=sample))
 
 
 def paper_lots(aids: AidsConfig | None = None, device: str = "cpu"
@@ -253,7 +242,7 @@ def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
     where the envs and the policy run (default: the checkpoint's training device). ``aids``:
     NAME=VALUE settings of the agent's aids (:func:`with_aids`). ``sample``: a torch seed,
     actions drawn from the policy's distribution (seeded so at each level), not its mode."""
-    agent = load_agent(path, device, aids, sample)
+    agent = checkpoint_agent(path, device, aids, sample)
     rows = evaluate_agent(agent, episodes, levels, seed, sample)
     if videos is not None:
         record_rollouts(agent, videos, video_format, levels, seed, sample)
@@ -308,6 +297,49 @@ def write_tables(rows: list[dict], out: Path) -> str:
     return table
 
 
+def sb3_agent(predict: Callable, observe: Callable, policy: str) -> Agent:
+    """A Stable-Baselines3 model's deterministic policy on the paper's lots (no aid):
+    ``predict`` is the model's, ``observe(env, td)`` what it reads; its [-1, 1] actions (the
+    Gymnasium env's) are scaled to the env's bounds."""
+    def drive(env: TransformedEnv) -> Callable:
+        high = env.action_spec.space.high[0]
+
+        def act(td):
+            action, _ = predict(observe(env, td), deterministic=True)
+            return td.set("action", torch.as_tensor(action, dtype=torch.float32) * high)
+        return act
+
+    return Agent(paper_lots(), drive, ParkingConfig().max_steps, composition(None, policy))
+
+
+def evaluate_into(out: Path, rows: Callable[[], list[dict]], overwrite: bool) -> None:
+    """Print and write (``evaluation.md``, ``evaluation.csv``) the table ``rows()`` makes,
+    refused before any work when ``out`` holds one and ``overwrite`` is not set."""
+    if any((out / name).exists() for name in ("evaluation.md", "evaluation.csv")) \
+            and not overwrite:
+        raise ValueError(f"{out} holds an evaluation: --overwrite to replace it")
+    table = rows()
+    print(summary(table), flush=True)  # the table first: whatever the disk says
+    write_tables(table, out)
+
+
+def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                counts: tuple[str, ...], run: Callable[[argparse.Namespace], None]) -> None:
+    """A Stable-Baselines3 recipe's command line: ``counts`` (argument names) must be >= 1,
+    ``--episodes`` at most MAX_EPISODES and ``--seed`` a seed; then ``run(args)``, whose
+    ValueError or OSError is one line and exit status 2."""
+    for name in counts:
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be >= 1")
+    if args.episodes > MAX_EPISODES:
+        parser.error(f"--episodes must be <= {MAX_EPISODES}, got {args.episodes}")
+    try:
+        check_seed(args.seed, "--seed")
+        run(args)
+    except (ValueError, OSError) as err:
+        parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m trainers.evaluate",
                                      description=__doc__.splitlines()[0])
@@ -346,7 +378,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         check_seed(args.seed, "--seed")
         agent = load_expert(args.expert, args.device or "cpu") if args.expert is not None \
-            else load_agent(args.checkpoint, args.device, args.aids, args.sample)
+            else checkpoint_agent(args.checkpoint, args.device, args.aids, args.sample)
         with locked(out, "--out"):
             outputs = [out / "evaluation.md", out / "evaluation.csv"]
             if videos is not None:

@@ -34,23 +34,13 @@ import numpy as np
 import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
-from torchrl.envs import TransformedEnv
 
 import torchpark  # noqa: F401  (registers torchpark/Parking-v0)
-from torchpark import ParkingConfig, ParkingEnv
-from torchpark.config import check_seed
+from torchpark import ParkingEnv
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.files import locked, save_torch, write_file
 from trainers.checkpoint import load_checkpoint, load_weights
-from trainers.evaluate import (
-    MAX_EPISODES,
-    Agent,
-    composition,
-    evaluate_agent,
-    paper_lots,
-    summary,
-    write_tables,
-)
+from trainers.evaluate import evaluate_agent, evaluate_into, run_command, sb3_agent
 
 MODEL, STATE = "model.zip", "state.pt"
 
@@ -187,16 +177,7 @@ def evaluate(out: Path, episodes: int, seed: int) -> list[dict]:
     load_policy(model, state, out)
     policy = (f"PPO (Stable-Baselines3 defaults, the paper's recipe), "
               f"{model.num_timesteps:,} frames")
-
-    def drive(env: TransformedEnv):
-        high = env.action_spec.space.high[0]  # the Gymnasium env's [-1, 1] actions, scaled
-
-        def policy(td):
-            action, _ = model.predict(td["observation"].numpy(), deterministic=True)
-            return td.set("action", torch.as_tensor(action, dtype=torch.float32) * high)
-        return policy
-
-    agent = Agent(paper_lots(), drive, ParkingConfig().max_steps, composition(None, policy))
+    agent = sb3_agent(model.predict, lambda env, td: td["observation"].numpy(), policy)
     return evaluate_agent(agent, episodes, seed=seed)
 
 
@@ -218,16 +199,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="write evaluation.md/.csv for the model in --out")
     parser.add_argument("--episodes", type=int, default=200, help="per level (--evaluate)")
     args = parser.parse_args(argv)
-    for name in ("total_frames", "frames_per_level", "checkpoint_every", "episodes"):
-        if getattr(args, name) < 1:
-            parser.error(f"--{name.replace('_', '-')} must be >= 1")
-    if args.episodes > MAX_EPISODES:
-        parser.error(f"--episodes must be <= {MAX_EPISODES}, got {args.episodes}")
-    try:
-        check_seed(args.seed, "--seed")
-        run(args)
-    except (ValueError, OSError) as err:
-        parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
+    run_command(parser, args,
+                ("total_frames", "frames_per_level", "checkpoint_every", "episodes"), run)
 
 
 def run(args: argparse.Namespace) -> None:
@@ -239,12 +212,8 @@ def run(args: argparse.Namespace) -> None:
         if not (args.evaluate or args.resume) and held and not args.overwrite:
             raise ValueError(f"{args.out} holds a run: --resume it or --overwrite it")
         if args.evaluate:
-            tables = [args.out / "evaluation.md", args.out / "evaluation.csv"]
-            if any(t.exists() for t in tables) and not args.overwrite:
-                raise ValueError(f"{args.out} holds an evaluation: --overwrite to replace it")
-            rows = evaluate(args.out, args.episodes, seed=1)
-            print(summary(rows), flush=True)  # the table first: whatever the disk says
-            write_tables(rows, args.out)
+            evaluate_into(args.out, lambda: evaluate(args.out, args.episodes, seed=1),
+                          args.overwrite)
             return
         torch.set_num_threads(1)  # one core: the machine has two
         train(args.out, args.total_frames, args.frames_per_level, args.checkpoint_every,

@@ -47,6 +47,9 @@ NORMALISED = "observation_norm"  # the normalised observation the networks read
 # exactly across ranks and workers, tests/test_trainer.py and tests/test_distributed.py).
 warnings.filterwarnings("ignore", category=UserWarning,
                         message="Support of VecNormV2 for containers with non-empty batch-size")
+# Stable-Baselines3's progress bar (the SB3 recipes' progress_bar=True) is tqdm's rich one,
+# which tqdm calls experimental on every run.
+warnings.filterwarnings("ignore", message="rich is experimental/alpha")
 
 
 class StateIndependentScale(nn.Module):
@@ -216,11 +219,3 @@ def build_models(cfg: TrainConfig) -> tuple[ProbabilisticActor, ValueOperator]:
     env = TransformedEnv(probe, Compose(*policy_input(cfg, probe)))
     return make_ppo_models(env.observation_spec[NORMALISED].shape[-1], env.action_spec,
                            cfg.model)
-
-
-def make_policy(cfg: TrainConfig, actor_state: dict) -> ProbabilisticActor:
-    """A trained actor (it reads ``NORMALISED``, see :func:`make_eval_env`) from its state
-    dict, on ``cfg.env.device``."""
-    actor, _ = build_models(cfg)
-    actor.load_state_dict(actor_state)
-    return actor.to(cfg.env.device)

@@ -1,0 +1,74 @@
+"""An agent in one call (trainers.agent.load_agent) on the committed checkpoints: it drives as
+the evaluator drives, in TorchRL and in Gymnasium."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from trainers.agent import load_agent
+from trainers.evaluate import checkpoint_agent, run_level
+
+ROOT = Path(__file__).resolve().parents[1]
+# The policy alone (position and goal/clearance features in its input, power and gear action
+# maps) and the hybrid of the fast preset (brake, docking law, 5-step action repeat, the
+# brake's flag in its input).
+CHECKPOINTS = [ROOT / "results" / "policy_alone" / "checkpoint_best.pt",
+               ROOT / "results" / "fast" / "checkpoint_final.pt"]
+
+
+def _gym_episode(agent, occupancy: float, seed: int):
+    """One Gymnasium episode driven by ``agent.predict``: the rear-axle poses after each step
+    (from the reset on) and the last info."""
+    env = agent.gym_env(occupancy=occupancy, seed=seed)
+    obs, info = env.reset()
+    base = env.unwrapped.env
+    poses = [base.state.pose[0].clone()]
+    terminated = truncated = False
+    while not (terminated or truncated):
+        action, state = agent.predict(obs, info)
+        assert state is None and action.shape == (2,) and np.abs(action).max() <= 1
+        obs, _, terminated, truncated, info = env.step(action)
+        poses.append(base.state.pose[0].clone())
+    return torch.stack(poses), info
+
+
+@pytest.mark.parametrize("path", CHECKPOINTS, ids=lambda p: p.parent.name)
+def test_load_agent_reproduces_the_evaluators_first_episode(path):
+    occupancy, seed = 0.6, 5
+    evaluated = run_level(checkpoint_agent(str(path)), occupancy, episodes=1, seed=seed)
+    length = int(evaluated.length[0])
+    agent = load_agent(str(path))
+    # TorchRL: the evaluator's env and the policy, in env.rollout.
+    rollout = agent.make_env(1, occupancy, seed).rollout(1000, agent.policy)
+    assert rollout.shape[-1] == length
+    assert bool(rollout["next", "success"][0, -1]) == bool(evaluated.success[0])
+    # Gymnasium: the same lot from the same seed, the same trajectory to the last bit.
+    poses, info = _gym_episode(agent, occupancy, seed)
+    assert info["success"] == bool(evaluated.success[0])
+    assert info["collision"] == bool(evaluated.collision[0])
+    torch.testing.assert_close(poses, evaluated.poses[:len(poses), 0], rtol=0, atol=0)
+    assert len(poses) == length + 1
+
+
+def test_predict_takes_a_batch_and_names_what_it_needs():
+    agent = load_agent(str(CHECKPOINTS[0]))
+    env = agent.gym_env(seed=0)
+    obs, info = env.reset()
+    with pytest.raises(ValueError, match=r"info\['position'\]"):
+        agent.predict(obs)  # this policy reads the car's position, which info carries
+    batch = np.stack([obs, obs, obs])
+    actions, _ = agent.predict(batch, {"position": np.stack([info["position"]] * 3)})
+    assert actions.shape == (3, 2)
+    np.testing.assert_allclose(actions[0], agent.predict(obs, info)[0], atol=1e-5)  # matmul
+    sampled, _ = agent.predict(batch, {"position": np.stack([info["position"]] * 3)},
+                               deterministic=False)
+    assert not np.array_equal(sampled, actions) and np.abs(sampled).max() <= 1
+
+
+def test_load_agent_names_a_file_that_is_not_a_checkpoint(tmp_path):
+    bad = tmp_path / "model.pt"
+    torch.save({"weights": torch.zeros(1)}, bad)
+    with pytest.raises(ValueError, match=r"model\.pt"):
+        load_agent(str(bad))
