@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import sys
 import warnings
 
 import gymnasium
 import numpy as np
 import pytest
+import torch
 from gymnasium.utils.env_checker import check_env
 from gymnasium.wrappers.vector import RecordEpisodeStatistics
 
@@ -192,7 +194,8 @@ def test_vector_env_rejects_bad_actions():
 
 
 def test_bad_construction_is_a_clear_error():
-    with pytest.raises(ValueError, match="render_mode must be None or one of"):
+    with pytest.raises(ValueError, match="render_mode must be None or one of"), \
+            pytest.warns(UserWarning, match="not in the possible render_modes"):  # Gymnasium's
         gymnasium.make(ENV_ID, render_mode="ansi")
     with pytest.raises(TypeError, match="unknown keyword arguments \\['max_step'\\]"):
         gymnasium.make(ENV_ID, max_step=3)
@@ -250,3 +253,49 @@ def test_a_step_after_the_episode_ended_asks_for_a_reset():
         env.step(np.zeros(2, np.float32))
     env.reset()
     assert env.step(np.zeros(2, np.float32))[3] is False
+
+
+def test_human_mode_shows_each_frame_in_a_window(monkeypatch):
+    """pygame's own headless display (SDL's dummy video driver) stands in for the screen;
+    everything above it runs: the window shows the lot's picture after every reset and step."""
+    pygame = pytest.importorskip("pygame")
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    env = gymnasium.make(ENV_ID, render_mode="human", seed=0, occupancy=0.5)
+    assert env.metadata["render_modes"] == ["rgb_array", "human"]
+    env.reset()
+    for _ in range(3):
+        env.step(env.action_space.sample())
+        shown = pygame.surfarray.array3d(pygame.display.get_surface()).swapaxes(0, 1)
+        np.testing.assert_array_equal(shown, env.unwrapped.env.render(0))
+    assert env.render() is None  # Gymnasium's convention: the window is the output
+    env.close()
+    assert pygame.display.get_surface() is None
+
+
+def test_human_mode_without_pygame_names_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "pygame", None)  # import pygame raises ImportError
+    with pytest.raises(gymnasium.error.DependencyNotInstalled, match=r"torchpark\[human\]"):
+        gymnasium.make(ENV_ID, render_mode="human")
+    with pytest.raises(ValueError, match="render_mode"):
+        gymnasium.make_vec(ENV_ID, num_envs=2, render_mode="human")  # pictures only
+
+
+def test_the_picture_says_which_layer_drives_when_aids_are_on():
+    from torchpark import AidsConfig, BrakeConfig, DockingConfig, ParkingEnv
+
+    paper = ParkingEnv(1, seed=0)
+    paper.reset()
+    assert paper._drivers([0]) is None  # the paper's env: nothing written
+    env = ParkingEnv(2, seed=0, aids=AidsConfig(brake=BrakeConfig(), docking=DockingConfig()))
+    env.reset()
+    assert env._drivers([0, 1]) == ["policy", "policy"]
+    state = env.state  # row 0 just behind its goal, in the docking law's funnel
+    behind = state.goal.clone()
+    behind[:, 0] -= 2.0 * torch.cos(behind[:, 2])
+    behind[:, 1] -= 2.0 * torch.sin(behind[:, 2])
+    td = env.set_state(state._replace(pose=torch.where(torch.tensor([[True], [False]]), behind,
+                                                       state.pose)))
+    td = env.step(td.set("action", torch.zeros(2, 2)))
+    assert td["next", "docking_engaged"][0] and env._drivers([0]) == ["docking law"]
+    labelled, plain = env.render(0), paper.render(0)
+    assert (labelled[3:8, 6:30] == 255).any() and not (plain[3:8, 6:30] == 255).all(-1).any()

@@ -536,7 +536,19 @@ class ParkingEnv(EnvBase):
 
         if self._renderer is None:
             self._renderer = LotRenderer(self.layout, self.config)
-        return picture_envs(self._renderer, self._sim, self._observation, indices, columns)
+        return picture_envs(self._renderer, self._sim, self._observation, indices, columns,
+                            self._drivers(indices))
+
+    def _drivers(self, indices: list[int]) -> list[str] | None:
+        """Which layer drove each row's last step, when the brake or the docking law is on:
+        "brake" (it stopped or steered the step), "docking law" (it has taken over), else
+        "policy"; None for the paper's env and a policy alone."""
+        if self._agent.brake is None and self._agent.docking is None:
+            return None
+        aids = take_rows(self._aids, torch.tensor(indices, device=self.device))
+        return ["brake" if braked else "docking law" if docked else "policy"
+                for braked, docked in zip(aids.braked.tolist(), aids.docking_engaged.tolist(),
+                                          strict=True)]
 
     # ------------------------------------------------------------------ EnvBase hooks
     def _outputs(self, **fields: torch.Tensor) -> TensorDictBase:

@@ -41,7 +41,10 @@ from torchpark.sim.observation import NAV_DIM
 
 ENV_ID = "torchpark/Parking-v0"
 GOAL_ENV_ID = "torchpark/ParkingGoal-v0"  # torchpark.goal_env
-RENDER_MODES = ["rgb_array"]
+# The single env also opens a window ("human", through pygame: torchpark[human]); the
+# vector env returns pictures only.
+RENDER_MODES = ["rgb_array", "human"]
+VECTOR_RENDER_MODES = ["rgb_array"]
 INFO_KEYS = ("success", "collision", "occupancy")
 # What the aids emit, in the info when they are on: the brake's flag and count, the docking
 # law's flag, the rear axle's (x, y) (AidsConfig.observe_position).
@@ -72,9 +75,9 @@ def _make_batched(num_envs: int, occupancy: float | None, device: torch.device |
     return env
 
 
-def _check_render_mode(render_mode: str | None) -> str | None:
-    if render_mode is not None and render_mode not in RENDER_MODES:
-        raise ValueError(f"render_mode must be None or one of {RENDER_MODES}, got {render_mode!r}")
+def _check_render_mode(render_mode: str | None, modes: list[str]) -> str | None:
+    if render_mode is not None and render_mode not in modes:
+        raise ValueError(f"render_mode must be None or one of {modes}, got {render_mode!r}")
     return render_mode
 
 
@@ -158,12 +161,19 @@ class ParkingGymEnv(gymnasium.Env):
                  compile_step: bool = False, physical_actions: bool = False,
                  config: ParkingConfig | None = None, aids: AidsConfig | None = None,
                  max_episode_steps: int | None = None, **fields: Any) -> None:
-        self.render_mode = _check_render_mode(render_mode)
+        self.render_mode = _check_render_mode(render_mode, RENDER_MODES)
+        self._window = None
+        if render_mode == "human":  # pygame, or the error naming the extra, before any work
+            from torchpark.media.window import Window
+
+            self._window = Window(fps=self.metadata["render_fps"])
         self.env = _make_batched(1, occupancy, device, seed, compile_step, config, aids,
                                  max_episode_steps, fields)
         self.observation_space, self.action_space, self._scale = _spaces(
             self.env, check_flag(physical_actions, "physical_actions"))
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.env.config.vehicle.dt)}
+        if self._window is not None:
+            self._window.fps = self.metadata["render_fps"]
         self._action = TensorDict({"action": torch.zeros(1, 2, device=self.env.device)},
                                   batch_size=[1], device=self.env.device)
         self._ended = True  # no episode yet: reset() first
@@ -173,6 +183,7 @@ class ParkingGymEnv(gymnasium.Env):
         super().reset(seed=seed)
         td = _reset_lots(self.env, seed, options)
         self._ended = False
+        self._show()
         return self._observe(td), self._info(td)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -184,15 +195,32 @@ class ParkingGymEnv(gymnasium.Env):
         nxt = self.env.step(self._action)["next"]
         terminated, truncated = bool(nxt["terminated"][0, 0]), bool(nxt["truncated"][0, 0])
         self._ended = terminated or truncated
+        self._show()
         return (self._observe(nxt), float(nxt["reward"][0, 0]), terminated, truncated,
                 self._info(nxt))
 
     def render(self) -> np.ndarray | None:
+        """The lot's picture (rgb_array); None in human mode, whose window every reset and
+        step draw (Gymnasium's convention), and without a render_mode."""
         if self.render_mode is None:
             gymnasium.logger.warn("render() called without a render_mode; pass "
-                                  "render_mode='rgb_array' to gymnasium.make")
+                                  "render_mode='rgb_array' or 'human' to gymnasium.make")
+            return None
+        if self.render_mode == "human":
+            self._show()
             return None
         return self.env.render(0)
+
+    def close(self) -> None:
+        if self._window is not None:
+            self._window.close()
+        super().close()
+
+    def _show(self) -> None:
+        """Human mode: the lot now in the window (the goal outlined over the car; with the
+        brake or the docking law on, which layer drove the step)."""
+        if self._window is not None:
+            self._window.show(self.env.render(0))
 
     def _observe(self, td: TensorDictBase) -> Any:
         """The observation Gymnasium returns, from the step's (or reset's) output."""
@@ -218,7 +246,7 @@ class ParkingVectorEnv(VectorEnv):
     step limit.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": RENDER_MODES, "render_fps": 10,
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": VECTOR_RENDER_MODES, "render_fps": 10,
                                           "autoreset_mode": AutoresetMode.SAME_STEP}
 
     def __init__(self, num_envs: int, render_mode: str | None = None, *,
@@ -227,7 +255,7 @@ class ParkingVectorEnv(VectorEnv):
                  physical_actions: bool = False, config: ParkingConfig | None = None,
                  aids: AidsConfig | None = None, render_envs: int = 16,
                  max_episode_steps: int | None = None, **fields: Any) -> None:
-        self.render_mode = _check_render_mode(render_mode)
+        self.render_mode = _check_render_mode(render_mode, VECTOR_RENDER_MODES)
         self.env = _make_batched(num_envs, occupancy, device, seed, compile_step,
                                  config, aids, max_episode_steps, fields)
         self.num_envs = num_envs

@@ -30,6 +30,8 @@ EGO = (235, 95, 40)
 HEADING = (255, 240, 200)
 RAY = (235, 215, 90)
 HIT = (255, 60, 60)
+DRIVER_TEXT = (20, 20, 20)
+LABEL = (255, 255, 255)
 
 
 class LotRenderer:
@@ -77,12 +79,14 @@ class LotRenderer:
         return np.stack((px, py), axis=-1)
 
     def picture(self, parked: np.ndarray, goal_slot: int, pose: np.ndarray,
-              lidar: np.ndarray | None = None) -> np.ndarray:
+                lidar: np.ndarray | None = None, driver: str | None = None) -> np.ndarray:
         """One env's picture, (H, W, 3) uint8.
 
         parked: (S,) bool, slots holding a car; goal_slot: index of the goal slot; pose: (3,)
         rear axle (x m, y m, psi rad); lidar: (n_rays,) distances divided by the range, as in
-        the observation (None: no rays).
+        the observation (None: no rays); driver: which layer drove the last step (written in
+        the top-left corner, e.g. "policy", "docking law", "brake"; None: nothing written).
+        The goal slot's outline is drawn over the car, so it shows when the car covers it.
         """
         image = self._background.copy()
         draw = ImageDraw.Draw(image)
@@ -111,6 +115,12 @@ class LotRenderer:
                   width=max(1, round(self.scale / 4)))
         axle = self._pixels(np.asarray(pose[:2], dtype=np.float64))
         draw.line([tuple(axle), tuple(front.mean(axis=0))], fill=HEADING, width=1)
+        draw.polygon([tuple(p) for p in goal], outline=GOAL,
+                     width=max(1, round(self.scale / 5)))
+        if driver is not None:  # on a white label in the top-left corner
+            box = draw.textbbox((4, 2), f"driving: {driver}")
+            draw.rectangle((box[0] - 2, box[1] - 1, box[2] + 2, box[3] + 1), fill=LABEL)
+            draw.text((4, 2), f"driving: {driver}", fill=DRIVER_TEXT)
         return np.asarray(image)
 
 
@@ -139,14 +149,18 @@ def picture_grid(pictures: list[np.ndarray] | np.ndarray, columns: int | None = 
 
 
 def picture_envs(renderer: LotRenderer, state: ParkingState, observation: torch.Tensor,
-                 rows: list[int], columns: int | None = None) -> np.ndarray:
+                 rows: list[int], columns: int | None = None,
+                 drivers: list[str] | None = None) -> np.ndarray:
     """Pictures of the lots of ``rows`` of a batched state (``observation`` (N, D): the
-    LIDAR is drawn from it): one (H, W, 3) uint8 picture for one row, else a grid."""
+    LIDAR is drawn from it; ``drivers``: each row's driving layer, written on its picture):
+    one (H, W, 3) uint8 picture for one row, else a grid."""
     index = torch.tensor(rows, device=state.pose.device)
     s = renderer.num_slots
     parked = (state.present[index, :s] > 0.5).cpu().numpy()
     goal = state.goal_slot[index].cpu().numpy()
     pose = state.pose[index].cpu().numpy()
     lidar = observation[index, NAV_DIM:].cpu().numpy()
-    pictures = [renderer.picture(*row) for row in zip(parked, goal, pose, lidar, strict=True)]
+    drivers = drivers if drivers is not None else [None] * len(rows)
+    pictures = [renderer.picture(*row)
+                for row in zip(parked, goal, pose, lidar, drivers, strict=True)]
     return pictures[0] if len(pictures) == 1 else picture_grid(pictures, columns)
