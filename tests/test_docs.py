@@ -48,3 +48,12 @@ def test_the_slugs_are_githubs():
     assert slug("Results: 12M frames of `fast` on this 2-core CPU — above Table 2") \
         == "results-12m-frames-of-fast-on-this-2-core-cpu--above-table-2"
     assert slug("Usage with TorchRL") == "usage-with-torchrl"
+
+
+def test_ci_runs_the_readmes_two_commands_as_written():
+    """The README's first screen gives the set-up and test commands; CI runs them verbatim
+    (so a command that stops working on a fresh machine fails CI)."""
+    block = re.search(r"```bash\n(.*?)```", (ROOT / "README.md").read_text(), re.S).group(1)
+    commands = [line for line in block.splitlines() if line and not line.startswith("#")]
+    ci = (ROOT / ".ci" / "run").read_text().splitlines()
+    assert len(commands) == 2 and all(command in ci for command in commands)

@@ -104,7 +104,7 @@ def run_episodes(actor, env: TransformedEnv, max_steps: int, desc: str | None = 
     poses = [base.state.pose.cpu()]
     bar = None
     if desc is not None:
-        from tqdm import tqdm
+        from tqdm.auto import tqdm  # a widget in a notebook
 
         bar = tqdm(total=n, desc=desc, unit="episode", leave=False)
     with set_exploration_type(exploration), torch.no_grad():

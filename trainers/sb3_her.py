@@ -78,10 +78,10 @@ def save(model: SAC, out: Path, wall_clock: float) -> None:
                 "wall_clock_s": wall_clock}, out / STATE)
 
 
-def train(out: Path, total: int, every: int, seed: int) -> SAC:
+def train(out: Path, total: int, every: int, seed: int, compile_step: bool = True) -> SAC:
     """Train the baseline; ``state.pt`` and TensorBoard in ``out`` (locked by the caller)."""
     out.mkdir(parents=True, exist_ok=True)
-    model = new_model(seed, out)
+    model = new_model(seed, out, compile_step)
     schedule = Schedule(out, -(-total // len(PAPER_LEVELS)), every)
     model.learn(total, callback=schedule, tb_log_name="sac_her", progress_bar=True)
     save(model, out, time.perf_counter() - schedule.started)

@@ -10,7 +10,11 @@ the occupancy raised every 2M frames, 12M frames; then the per-level evaluation.
 This is the one way to run the paper's recipe here (``trainers.ppo`` has no ``paper``
 preset): it is what the paper ran, it made ``results/paper/``, and on this CPU it is faster
 than torchrl's one-env collector (single thread, compiled step: 724 frames/s against 244).
-The env is the paper's: no aid, uniform starts, C < 4e-4.
+The env is the paper's: no aid, uniform starts, C < 4e-4. It stays one Gymnasium env under
+SB3's own ``DummyVecEnv`` (what ``PPO("MlpPolicy", env)`` builds), not
+:class:`torchpark.sb3.ParkingVecEnv`: the adapter's gain is the batch, which the paper's one
+env does not have, and ``results/paper`` was made and resumes through that wrapper (its
+checkpoint holds that env's snapshot and SB3's last observation).
 
 A checkpoint (``--checkpoint-every`` frames, at rollout boundaries) is one file,
 ``state.pt``, written whole or not at all (``torchpark.files``): the policy's weights and
