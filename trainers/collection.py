@@ -93,6 +93,9 @@ class RankCollection:
                                        frames_per_batch=steps_per_batch,
                                        total_frames=total_steps, device=world.device,
                                        backend_options=backend_options(cfg))
+        # The workers start from the learner's weights (Ray's collector asks for a first
+        # sync before it is iterated).
+        self.collector.update_policy_weights_()
         self._norm_prefix = f"transforms.{len(self.env.transform) - 1}."
         self._counted: dict[str, torch.Tensor] | None = None
 
