@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from tensordict import TensorDict
-from tqdm import tqdm
+from tqdm.auto import tqdm  # a widget in a notebook (notebooks/04)
 
 from tests.reference import ReferenceParkingEnv  # run from the repository root (python -m)
 from torchpark import ParkingEnv
