@@ -58,6 +58,10 @@ def test_predict_takes_a_batch_and_names_what_it_needs():
     obs, info = env.reset()
     with pytest.raises(ValueError, match=r"info\['position'\]"):
         agent.predict(obs)  # this policy reads the car's position, which info carries
+    with pytest.raises(ValueError, match=r"observation must have shape \(23,\)"):
+        agent.predict(obs[:22], info)
+    with pytest.raises(ValueError, match="one value per observation"):
+        agent.predict(np.stack([obs, obs]), info)  # one observation's info for two
     batch = np.stack([obs, obs, obs])
     actions, _ = agent.predict(batch, {"position": np.stack([info["position"]] * 3)})
     assert actions.shape == (3, 2)

@@ -91,8 +91,12 @@ class TrainedAgent:
         position or brake flag in its input reads (ValueError naming what is missing).
         ``deterministic=False`` samples from the policy's distribution."""
         obs = torch.as_tensor(np.asarray(observation, np.float32))
+        dim = self._inputs.base_env.obs_dim
+        if obs.dim() not in (1, 2) or obs.shape[-1] != dim:
+            raise ValueError(f"observation must have shape ({dim},) or (B, {dim}) (the "
+                             f"paper's observation), got {tuple(obs.shape)}")
         single = obs.dim() == 1
-        batch = obs.reshape(-1, obs.shape[-1]).to(self.config.env.device)
+        batch = obs.reshape(-1, dim).to(self.config.env.device)
         td = TensorDict({"observation": batch}, batch_size=batch.shape[:1],
                         device=batch.device)
         for key in self._info_keys():
@@ -100,8 +104,12 @@ class TrainedAgent:
                 raise ValueError(f"this agent reads info[{key!r}]: pass the info the env "
                                  f"returned with this observation (agent.gym_env() puts it "
                                  f"there)")
-            td[key] = torch.as_tensor(np.asarray(info[key])).reshape(
-                len(td), -1).to(batch.device)
+            value = torch.as_tensor(np.asarray(info[key]))
+            width = self._inputs.base_env.observation_spec[key].shape[-1]
+            if value.numel() != len(td) * width:
+                raise ValueError(f"info[{key!r}] must hold one value per observation "
+                                 f"({len(td)} x {width}), got shape {tuple(value.shape)}")
+            td[key] = value.reshape(len(td), width).to(batch.device)
         transform = self._inputs.transform
         mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
         with torch.no_grad(), set_exploration_type(mode):
