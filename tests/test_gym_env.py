@@ -84,6 +84,9 @@ def test_make_kwargs_reach_the_batched_env():
     assert gymnasium.make_vec(ENV_ID, num_envs=2).env.config.max_steps == 1000
     with pytest.raises(TypeError, match="max_episode_steps"):
         gymnasium.make(ENV_ID, max_steps=7)  # ParkingConfig's name: the spec would not say it
+    for bad in (True, 0, "5"):
+        with pytest.raises(ValueError, match="max_episode_steps must be an int >= 1"):
+            ParkingGymEnv(max_episode_steps=bad)
     _, info = env.reset(seed=1)
     assert info["occupancy"] == pytest.approx(0.9)
     _, info = env.reset(options={"occupancy": 0.2})

@@ -15,6 +15,12 @@ from torchpark.config import check_occupancy
 PAPER_LEVELS = (0.0, 0.2, 0.4, 0.6, 0.8, 0.9)
 
 
+def level_at(frames: int, frames_per_level: int, count: int) -> int:
+    """Index of the level reached after ``frames`` frames when each of ``count`` levels lasts
+    ``frames_per_level`` frames (the last one holds from then on)."""
+    return min(frames // frames_per_level, count - 1)
+
+
 def frame_count(name: str, value: int) -> int:
     """``value`` if it is an int >= 1 (a number of frames), else a ValueError naming it."""
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -92,7 +98,7 @@ class OccupancyCurriculum(FrameCountingTransform):
     @property
     def level(self) -> int:
         """Index into ``levels`` of the current level."""
-        return min(self._frames // self.frames_per_level, len(self.levels) - 1)
+        return level_at(self._frames, self.frames_per_level, len(self.levels))
 
     @property
     def phase(self) -> int:

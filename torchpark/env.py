@@ -541,7 +541,7 @@ class ParkingEnv(EnvBase):
 
     def _drivers(self, indices: list[int]) -> list[str] | None:
         """Which layer drove each row's last step, when the brake or the docking law is on:
-        "brake" (it stopped or steered the step), "docking law" (it has taken over), else
+        "brake" (it stopped the last step of dt), "docking law" (it has taken over), else
         "policy"; None for the paper's env and a policy alone."""
         if self._agent.brake is None and self._agent.docking is None:
             return None

@@ -35,7 +35,7 @@ from tensordict import TensorDict, TensorDictBase
 
 from torchpark.aids.config import AidsConfig
 from torchpark.aids.step import BRAKED, DOCKING_ENGAGED, INTERVENTIONS
-from torchpark.config import ParkingConfig, check_flag
+from torchpark.config import ParkingConfig, check_flag, is_integer
 from torchpark.env import ParkingEnv
 from torchpark.sim.observation import NAV_DIM
 
@@ -60,8 +60,11 @@ def _make_batched(num_envs: int, occupancy: float | None, device: torch.device |
     if "max_steps" in fields:
         raise TypeError("the episode limit is Gymnasium's max_episode_steps (not max_steps): "
                         "gymnasium.make(..., max_episode_steps=N)")
-    if max_episode_steps is not None:
-        fields["max_steps"] = max_episode_steps
+    if max_episode_steps is not None:  # checked by its own name, then ParkingConfig's range
+        if not is_integer(max_episode_steps) or max_episode_steps < 1:
+            raise ValueError(f"max_episode_steps must be an int >= 1, got "
+                             f"{max_episode_steps!r}")
+        fields["max_steps"] = int(max_episode_steps)
     unknown = sorted(set(fields) - names)
     if unknown:
         raise TypeError(f"unknown keyword arguments {unknown}: expected occupancy, device, "
@@ -162,18 +165,16 @@ class ParkingGymEnv(gymnasium.Env):
                  config: ParkingConfig | None = None, aids: AidsConfig | None = None,
                  max_episode_steps: int | None = None, **fields: Any) -> None:
         self.render_mode = _check_render_mode(render_mode, RENDER_MODES)
-        self._window = None
-        if render_mode == "human":  # pygame, or the error naming the extra, before any work
-            from torchpark.media.window import Window
-
-            self._window = Window(fps=self.metadata["render_fps"])
         self.env = _make_batched(1, occupancy, device, seed, compile_step, config, aids,
                                  max_episode_steps, fields)
         self.observation_space, self.action_space, self._scale = _spaces(
             self.env, check_flag(physical_actions, "physical_actions"))
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.env.config.vehicle.dt)}
-        if self._window is not None:
-            self._window.fps = self.metadata["render_fps"]
+        self._window = None
+        if render_mode == "human":  # pygame, or the error naming the extra
+            from torchpark.media.window import Window
+
+            self._window = Window(fps=self.metadata["render_fps"])
         self._action = TensorDict({"action": torch.zeros(1, 2, device=self.env.device)},
                                   batch_size=[1], device=self.env.device)
         self._ended = True  # no episode yet: reset() first

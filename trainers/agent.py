@@ -23,6 +23,7 @@ collide with other projects'.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import gymnasium
@@ -125,14 +126,10 @@ class TrainedAgent:
         return (("position",) if aids.observe_position else ()) + (
             (BRAKED,) if self.config.agent.observe_brake else ())
 
-    @property
+    @cached_property
     def _inputs(self) -> TransformedEnv:
         """A one-lot env holding the agent's input transforms, for :meth:`predict`."""
-        env = self.__dict__.get("_input_env")
-        if env is None:
-            env = self.make_env(1)
-            object.__setattr__(self, "_input_env", env)
-        return env
+        return self.make_env(1)
 
 
 def load_agent(path: str, device: str | None = None) -> TrainedAgent:

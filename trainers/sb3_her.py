@@ -4,7 +4,7 @@ hyperparameters that solve highway-env's ``parking-v0`` (SAC + HER, 4 ``future``
 transition, gamma 0.95, learning rate 1e-3, 3 x 256 MLPs, batch 256), the occupancy raised
 through the paper's six levels in equal parts of the run; then the per-level evaluation.
 
-    python -m trainers.sb3_her --out results/her                  # train (~40 min on CPU)
+    python -m trainers.sb3_her --out results/her                  # train (1 h on one core)
     python -m trainers.sb3_her --out results/her --evaluate       # the three-threshold table
 
 The env is the paper's (no aid, uniform starts, reward and success test as in Table 1, one
@@ -28,11 +28,12 @@ from stable_baselines3 import SAC, HerReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from torchrl.envs import TransformedEnv
 
-from torchpark.curriculum import PAPER_LEVELS
+from torchpark.curriculum import PAPER_LEVELS, level_at
 from torchpark.files import locked, save_torch
 from torchpark.goal_env import GOAL_ENV_ID, goal_observation
 from trainers.checkpoint import load_checkpoint, load_weights
 from trainers.evaluate import evaluate_agent, evaluate_into, run_command, sb3_agent
+from trainers.sb3_paper import parking_env
 
 STATE = "state.pt"
 STATE_KEYS = frozenset({"frames", "policy", "wall_clock_s"})
@@ -60,11 +61,11 @@ class Schedule(BaseCallback):
         self.started = time.perf_counter()
 
     def level(self) -> float:
-        return PAPER_LEVELS[min(self.num_timesteps // self.frames_per_level,
-                                len(PAPER_LEVELS) - 1)]
+        return PAPER_LEVELS[level_at(self.num_timesteps, self.frames_per_level,
+                                     len(PAPER_LEVELS))]
 
     def _on_step(self) -> bool:
-        self.model.get_env().envs[0].unwrapped.env.occupancy = self.level()
+        parking_env(self.model).occupancy = self.level()
         if self.num_timesteps % self.every == 0:
             save(self.model, self.out, time.perf_counter() - self.started)
         if self.num_timesteps % 1_000 == 0:
@@ -133,7 +134,6 @@ def run(args: argparse.Namespace) -> None:
         if (args.out / STATE).exists() and not args.overwrite:
             raise ValueError(f"{args.out} holds a run: --overwrite to start it afresh")
         torch.set_num_threads(1)  # one core: the machine has two
-        np.random.seed(args.seed)
         train(args.out, args.total_frames, args.checkpoint_every, args.seed)
 
 

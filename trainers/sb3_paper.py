@@ -37,11 +37,12 @@ import gymnasium
 import numpy as np
 import torch
 from stable_baselines3 import PPO
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
 import torchpark  # noqa: F401  (registers torchpark/Parking-v0)
 from torchpark import ParkingEnv
-from torchpark.curriculum import PAPER_LEVELS
+from torchpark.curriculum import PAPER_LEVELS, level_at
 from torchpark.files import locked, save_torch, write_file
 from trainers.checkpoint import load_checkpoint, load_weights
 from trainers.evaluate import evaluate_agent, evaluate_into, run_command, sb3_agent
@@ -54,7 +55,7 @@ def make_env(seed: int, compile_step: bool = True) -> gymnasium.Env:
     return gymnasium.make("torchpark/Parking-v0", seed=seed, compile_step=compile_step)
 
 
-def parking_env(model: PPO) -> ParkingEnv:
+def parking_env(model: BaseAlgorithm) -> ParkingEnv:
     """The batched ParkingEnv under the model's (vectorised, monitored) Gymnasium env."""
     return model.get_env().envs[0].unwrapped.env
 
@@ -71,8 +72,8 @@ class PaperSchedule(BaseCallback):
         self.started = time.perf_counter()
 
     def level(self) -> float:
-        return PAPER_LEVELS[min(self.num_timesteps // self.frames_per_level,
-                                len(PAPER_LEVELS) - 1)]
+        return PAPER_LEVELS[level_at(self.num_timesteps, self.frames_per_level,
+                                     len(PAPER_LEVELS))]
 
     def _on_rollout_start(self) -> None:
         frames = self.num_timesteps
