@@ -1,6 +1,6 @@
 """A goal-conditioned baseline: Stable-Baselines3's SAC with hindsight relabelling
 (``HerReplayBuffer``) on ``torchpark/ParkingGoal-v0`` (:mod:`torchpark.goal_env`), with the
-hyperparameters that solve highway-env's ``parking-v0`` (SAC + HER, 4 ``future`` goals per
+settings of highway-env's ``parking-v0`` examples (SAC + HER, 4 ``future`` goals per
 transition, gamma 0.95, learning rate 1e-3, 3 x 256 MLPs, batch 256), the occupancy raised
 through the paper's six levels in equal parts of the run; then the per-level evaluation.
 
