@@ -11,7 +11,7 @@ from torchpark.sim.geometry import OrientedBoxes, oriented_boxes, ray_box_distan
 from torchpark.sim.lidar import lidar_scan, line_rotation
 
 
-@pytest.mark.parametrize("n_rays", [16, 7, 2, 1])
+@pytest.mark.parametrize("n_rays", [16, 12, 7, 4, 2, 1])
 def test_scan_matches_per_ray_loop(n_rays, layout):
     gen = torch.Generator().manual_seed(0)
     n = 64
@@ -39,3 +39,15 @@ def test_scan_sees_max_range_in_the_open_and_zero_inside_a_box():
     out = lidar_scan(x, y, torch.ones(3), torch.zeros(3), line_rotation(16), frame, valid.float(),
                      16, 20.0)
     assert (out[0] == 0).all() and (out[1] == 20).all() and (out[2] == 20).all()
+
+
+def test_rays_along_an_edge_line_from_on_it_hit_the_box():
+    """Heading 0 exactly, origin exactly on the box's lower edge line, 3 m before it: the rays
+    along that line (a zero direction component in the box frame, reciprocal inf) see the box
+    ahead at 3 m and nothing behind; never NaN."""
+    frame = oriented_boxes(torch.tensor([[5.0, 1.0, 0.0, 2.0, 1.0]]))  # x in [3, 7], y in [0, 2]
+    out = lidar_scan(torch.zeros(1), torch.zeros(1), torch.ones(1), torch.zeros(1),
+                     line_rotation(16), frame, torch.ones(1, 1), 16, 20.0)
+    assert not out.isnan().any()
+    assert out[0, 0] == 3.0 and out[0, 8] == 20.0  # ahead along the edge; behind: nothing
+    assert out[0, 4] == 20.0  # straight up (cos(pi/2) != 0 in float32): misses the box

@@ -15,10 +15,9 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-# A unit ray direction component below this is parallel to the slab (|t| would exceed 1e12 m
-# per metre of offset); _FAR stands for an unbounded slab parameter, finite in float32.
-_PARALLEL_EPS = 1e-12
-_FAR = 1e30
+# A line origin exactly on a slab face is moved this far inside the slab (metres), so that a
+# line along the face, whose parameter there would be 0 * inf = NaN, stays in the closed slab.
+_ON_FACE = 1e-30
 
 
 def wrap_angle(angle: Tensor) -> Tensor:
@@ -116,19 +115,29 @@ def ray_box_distance(origins: Tensor, angles: Tensor, boxes: Tensor, max_range: 
     return torch.where(hit, t_near.clamp(min=0.0), max_range).clamp(max=max_range)
 
 
-def _slab(offset: Tensor, direction: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
-    """Parameter interval [lo, hi] where offset + t direction is in [-half, half].
+def slab_faces(offset: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+    """The faces of the slab [-half, half] relative to a line origin at ``offset`` on the
+    slab's axis, metres [...]: (lower, upper) = (-half - offset, half - offset).
 
-    A direction below _PARALLEL_EPS is parallel to the slab: the interval is then everything
-    (-_FAR, _FAR) when |offset| <= half, else empty (lo = _FAR > hi = -_FAR). No inf, no NaN.
+    A face exactly at the origin (0) is moved ``_ON_FACE`` outwards, so the origin is strictly
+    inside the closed slab and :func:`slab_span` needs no branch for a line along the face.
     """
-    parallel = direction.abs() < _PARALLEL_EPS
-    inv = 1.0 / torch.where(parallel, 1.0, direction)
-    t1, t2 = (-half - offset) * inv, (half - offset) * inv
-    inside = offset.abs() <= half
-    lo = torch.where(parallel, torch.where(inside, -_FAR, _FAR), torch.minimum(t1, t2))
-    hi = torch.where(parallel, torch.where(inside, _FAR, -_FAR), torch.maximum(t1, t2))
-    return lo, hi
+    lower, upper = -half - offset, half - offset
+    return (torch.where(lower == 0.0, -_ON_FACE, lower),
+            torch.where(upper == 0.0, _ON_FACE, upper))
+
+
+def slab_span(lower: Tensor, upper: Tensor, inverse: Tensor) -> tuple[Tensor, Tensor]:
+    """Parameter interval [lo, hi] where ``origin + t direction`` is in a slab, from its faces
+    (:func:`slab_faces`) and the reciprocal ``inverse`` = 1 / (direction along the axis).
+
+    Branch-free for lines parallel to the slab: their reciprocal is +-inf (IEEE 1 / +-0), so
+    the interval is (-inf, inf) when the origin is inside the slab and empty ([inf, inf] or
+    [-inf, -inf], which no other slab's interval meets) when it is outside; the faces are never
+    0 (:func:`slab_faces`), so 0 * inf = NaN cannot occur.
+    """
+    t1, t2 = lower * inverse, upper * inverse
+    return torch.minimum(t1, t2), torch.maximum(t1, t2)
 
 
 def slab_interval(x: Tensor, y: Tensor, cos: Tensor, sin: Tensor, boxes: OrientedBoxes
@@ -136,12 +145,13 @@ def slab_interval(x: Tensor, y: Tensor, cos: Tensor, sin: Tensor, boxes: Oriente
     """Parameter interval [t_near, t_far] where the line (x, y) + t (cos, sin) is in the box.
 
     All arguments broadcast; (cos, sin) must be a unit vector, so t is in metres. The line
-    meets the closed box iff t_near <= t_far. Both are finite for lines parallel to an edge.
+    meets the closed box iff t_near <= t_far (both +-inf for a line parallel to an edge that
+    misses the box, and never NaN).
     """
     rx, ry = x - boxes.cx, y - boxes.cy
     # Line origin and direction in the box frame (x along u, y along n).
     ox, oy = rx * boxes.cos + ry * boxes.sin, ry * boxes.cos - rx * boxes.sin
     dx, dy = cos * boxes.cos + sin * boxes.sin, sin * boxes.cos - cos * boxes.sin
-    x_lo, x_hi = _slab(ox, dx, boxes.half_length)
-    y_lo, y_hi = _slab(oy, dy, boxes.half_width)
+    x_lo, x_hi = slab_span(*slab_faces(ox, boxes.half_length), 1.0 / dx)
+    y_lo, y_hi = slab_span(*slab_faces(oy, boxes.half_width), 1.0 / dy)
     return torch.maximum(x_lo, y_lo), torch.minimum(x_hi, y_hi)
