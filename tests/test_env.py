@@ -166,7 +166,8 @@ def test_collector_auto_resets_and_keeps_the_extra_keys(device):
     (ParkingConfig(occupancy=0.9), AidsConfig(
         action_repeat=3, brake=BrakeConfig(steer_clear=5, penalty=-1.0),
         near_goal_starts=NearGoalStarts(), docking=DockingConfig())),
-], ids=["paper", "docking", "all-aids"])
+    (ParkingConfig(collision_substeps=4), AidsConfig(brake=BrakeConfig(steer_clear=5))),
+], ids=["paper", "docking", "all-aids", "swept-brake"])
 def test_compiled_step_is_one_graph_and_matches_eager(config, aids, device):
     """compile_step=True compiles step and reset with fullgraph=True: any graph break raises."""
     actions = random_actions(64, 40, 9).to(device)
@@ -434,6 +435,23 @@ def test_a_process_builds_as_many_compiled_envs_as_it_likes():
 def _equal_snapshots(a: dict, b: dict) -> bool:
     return a.keys() == b.keys() and all(
         torch.equal(a[k], b[k]) if isinstance(a[k], torch.Tensor) else a[k] == b[k] for k in a)
+
+
+def test_a_snapshot_from_before_a_config_field_existed_restores_at_its_default():
+    """A snapshot's build that lacks a field added since (collision_substeps) is read as the
+    field's default: restored into an env at the default, refused by name by one that is
+    not."""
+    env = ParkingEnv(4, seed=1)
+    env.reset()
+    older = env.snapshot()
+    del older["build"]["config"]["collision_substeps"]
+    env.rand_step()
+    env.restore(older)
+    assert torch.equal(env.state.pose, older["state.pose"])
+    swept = ParkingEnv(4, seed=1, config=ParkingConfig(collision_substeps=8))
+    with pytest.raises(ValueError, match=r"config\.collision_substeps=1 in the snapshot, 8 "
+                                         r"here"):
+        swept.restore(older)
 
 
 def test_restore_checks_everything_before_writing_anything():

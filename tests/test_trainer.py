@@ -248,10 +248,12 @@ def test_evaluation_table_has_the_stated_columns(smoke_run, tmp_path):
         assert float(r["success"]) <= float(r["success_4e-3"]) <= float(r["success_4e-2"])
         assert 1 <= float(r["mean_length"]) <= 50 and float(r["pos_err_median_m"]) >= 0
     markdown = (tmp_path / "evaluation.md").read_text()
-    caption, blank, header = markdown.splitlines()[:3]
+    caption, blank, test, blank_too, header = markdown.splitlines()[:5]
     assert caption.startswith("agent: policy alone; brake: off; docking law: off; action repeat: 1")
-    assert blank == "" and header.startswith("| occupancy | episodes | success | success_4e-3 |")
-    assert markdown.count("\n") == 10
+    assert test == "collision test: the paper's, the car's box at the end of each step of dt"
+    assert blank == blank_too == ""
+    assert header.startswith("| occupancy | episodes | success | success_4e-3 |")
+    assert markdown.count("\n") == 12
     videos = sorted(p.name for p in tmp_path.glob("rollout_occ*.mp4"))
     assert videos == [f"rollout_occ{p}.mp4" for p in sorted(["0", "20", "40", "60", "80", "90"])]
     assert iio.improps(tmp_path / "rollout_occ90.mp4").shape[1:] == (384, 480, 3)
@@ -276,6 +278,26 @@ def test_evaluation_puts_a_policy_under_other_aids(smoke_run, tmp_path):
                    "--aids", *aids])
     assert (tmp_path / "evaluation.md").read_text().startswith(
         "agent: hybrid: policy + emergency brake + docking law, added at evaluation")
+
+
+def test_evaluation_with_the_collision_test_along_the_motion_says_so(smoke_run, tmp_path,
+                                                                    capsys):
+    """--collision-substeps K evaluates the policy with K poses per step of dt tested for
+    collision (the task's test is the paper's), says so in the table and on the terminal;
+    a count outside [1, 64] is refused by name."""
+    _, final = smoke_run
+    argv = [str(final), "--episodes", "2", "--out", str(tmp_path), "--videos", "none"]
+    evaluate_main([*argv, "--collision-substeps", "8"])
+    line = "collision test: along the motion, 8 poses per step of dt (misses no contact " \
+           "deeper than 67 mm)"
+    assert line in capsys.readouterr().out.splitlines()
+    assert (tmp_path / "evaluation.md").read_text().splitlines()[2] == line
+    for bad in ("0", "65"):
+        with pytest.raises(SystemExit) as refused:
+            evaluate_main([*argv, "--overwrite", "--collision-substeps", bad])
+        assert refused.value.code == 2
+        assert f"--collision-substeps must be an int in [1, 64], got {bad}" in \
+            capsys.readouterr().err
 
 
 def test_the_evaluators_output_fits_a_terminal(smoke_run, tmp_path, capsys):

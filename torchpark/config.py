@@ -202,6 +202,7 @@ class RewardConfig:
 
 
 _MAX_STEPS_LIMIT = 10**9  # far beyond any episode; the step counter is int64
+MAX_COLLISION_SUBSTEPS = 64  # collision tests per step of dt: 64 misses no contact deeper than 8 mm
 
 
 @dataclass(frozen=True)
@@ -216,6 +217,11 @@ class ParkingConfig:
     reward: RewardConfig = field(default_factory=RewardConfig)
     max_steps: int = 1000  # truncation, in steps of vehicle.dt
     occupancy: float = 0.0  # initial obstacle occupancy in [0, 1]
+    # Poses tested for collision per step of dt, evenly spaced along the step's motion and
+    # ending at its end pose: 1 is the paper's test of the end pose alone; K > 1 also catches
+    # a car that touches a parked car only between two end poses (a corner through a
+    # corner), missing no contact deeper than collision_miss_depth.
+    collision_substeps: int = 1
 
     def __post_init__(self) -> None:
         check_types(self)
@@ -229,6 +235,23 @@ class ParkingConfig:
                  f"< the thinnest obstacle, min(LotConfig.wall_thickness, car_width) = "
                  f"{thinnest} m (else the car can pass through it in one step)", stride)
         check_occupancy(self.occupancy, "ParkingConfig.occupancy")
+        require(1 <= self.collision_substeps <= MAX_COLLISION_SUBSTEPS,
+                "ParkingConfig.collision_substeps", f"an int in [1, {MAX_COLLISION_SUBSTEPS}]",
+                self.collision_substeps)
+
+    @property
+    def collision_miss_depth(self) -> float:
+        """The deepest overlap with an obstacle, metres, that the collision test can miss in
+        a step of dt: half the farthest any point of the car's box can travel between two
+        tested poses (at full speed and full steer; the step's start pose was tested clear).
+        The paper's end-pose test (collision_substeps = 1) misses up to 0.54 m for the
+        paper's car; 8 sub-steps up to 67 mm."""
+        car = self.vehicle
+        reach = math.hypot(max(car.length - car.rear_overhang, car.rear_overhang),
+                           car.width / 2.0)  # the box corner farthest from the rear axle
+        stride = car.max_speed * car.dt
+        turn = stride * math.tan(car.max_steer) / car.wheelbase
+        return (stride + turn * reach) / (2.0 * self.collision_substeps)
 
 
 def check_occupancy(value: float, name: str = "occupancy") -> float:

@@ -97,12 +97,21 @@ def check_device(device: object, name: str = "device") -> None:
                          f"device(s) here")
 
 
-def _first_difference(saved: object, ours: object, name: str = "") -> str | None:
+_MISSING = object()
+
+
+def _first_difference(saved: object, ours: object, default: object = None, name: str = ""
+                      ) -> str | None:
     """Where two nested dicts of plain data first differ, as ``"name=<saved> in the
-    snapshot, <ours> here"``; None where they are equal."""
+    snapshot, <ours> here"``; None where they are equal. A key the snapshot lacks (a field
+    added since it was taken) is read as its value in ``default`` (a nested dict of the
+    same shape: the fields' defaults)."""
     if isinstance(saved, dict) and isinstance(ours, dict):
+        default = default if isinstance(default, dict) else {}
         for key in sorted(set(saved) | set(ours), key=str):
-            found = _first_difference(saved.get(key), ours.get(key), f"{name}.{key}".lstrip("."))
+            theirs = saved.get(key, default.get(key, _MISSING))
+            found = _first_difference(None if theirs is _MISSING else theirs, ours.get(key),
+                                      default.get(key), f"{name}.{key}".lstrip("."))
             if found is not None:
                 return found
         return None
@@ -460,7 +469,9 @@ class ParkingEnv(EnvBase):
         if missing or set(snapshot) - set(expected):
             raise ValueError(f"snapshot must hold exactly {sorted(expected)}; missing "
                              f"{missing}, extra {sorted(set(snapshot) - set(expected))}")
-        differs = _first_difference(snapshot["build"], expected["build"])
+        defaults = {"config": dataclasses.asdict(ParkingConfig()),
+                    "aids": dataclasses.asdict(AidsConfig())}
+        differs = _first_difference(snapshot["build"], expected["build"], defaults)
         if differs is not None:
             raise ValueError(f"snapshot['build'] is of an env built otherwise: {differs}")
         for key, ours in expected.items():

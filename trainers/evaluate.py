@@ -39,7 +39,7 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchpark import AidsConfig, ParkingConfig, ParkingEnv
-from torchpark.config import SEED_LIMIT, check_seed, is_integer
+from torchpark.config import MAX_COLLISION_SUBSTEPS, SEED_LIMIT, check_seed, is_integer
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.experts import ExpertConfig, PlannerExpert
 from torchpark.files import locked, write_csv, write_text
@@ -116,12 +116,24 @@ class Agent(NamedTuple):
     """What the evaluator runs: ``make_env(occupancy, episodes, seed)`` builds ``episodes``
     lots at ``occupancy`` with the agent's aids and input transforms, ``policy(env)`` is the
     policy that drives such an env, ``max_steps`` its episodes' limit, ``made_of`` the
-    COMPOSITION columns."""
+    COMPOSITION columns, ``collision_substeps`` the collision test of its envs
+    (``ParkingConfig.collision_substeps``; :func:`collision_test`)."""
 
     make_env: Callable[[float, int, int], TransformedEnv]
     policy: Callable[[TransformedEnv], Callable]
     max_steps: int
     made_of: dict
+    collision_substeps: int = 1
+
+
+def collision_test(substeps: int) -> str:
+    """What the collision test of an env with ``substeps`` poses per step of dt
+    (``ParkingConfig.collision_substeps``) is, in words."""
+    if substeps == 1:
+        return "collision test: the paper's, the car's box at the end of each step of dt"
+    depth = ParkingConfig(collision_substeps=substeps).collision_miss_depth
+    return (f"collision test: along the motion, {substeps} poses per step of dt (misses no "
+            f"contact deeper than {1000 * depth:.0f} mm)")
 
 
 def run_level(agent: Agent, occupancy: float, episodes: int, seed: int,
@@ -173,7 +185,7 @@ def level_row(run: Episodes, occupancy: float) -> dict[str, float]:
 
 
 def checkpoint_agent(path: str, device: str | None = None, aids: list[str] | None = None,
-                     sample: int | None = None) -> Agent:
+                     sample: int | None = None, collision_substeps: int | None = None) -> Agent:
     """The checkpoint's agent (:func:`trainers.agent.load_agent`) as the evaluator runs it
     (see :func:`evaluate` for the arguments); ValueError naming the file or the argument that
     does not fit."""
@@ -183,33 +195,52 @@ def checkpoint_agent(path: str, device: str | None = None, aids: list[str] | Non
     trained = load_agent(path, device)
     if aids:  # around the network: its input and output stay as trained
         trained = dataclasses.replace(trained, config=with_aids(trained.config, aids))
+    if collision_substeps is not None:  # the task's collision test, not the agent's
+        check_substeps(collision_substeps)
+        trained = dataclasses.replace(trained, config=override(
+            trained.config, [f"env.task.collision_substeps={collision_substeps}"]))
+    task = trained.config.env.task
     return Agent(
         lambda occupancy, episodes, seed: trained.make_env(episodes, occupancy, seed),
-        lambda env: trained.policy, trained.config.env.task.max_steps,
-        composition(trained.aids, trained.trained_by, added=bool(aids), sampled=sample))
+        lambda env: trained.policy, task.max_steps,
+        composition(trained.aids, trained.trained_by, added=bool(aids), sampled=sample),
+        task.collision_substeps)
 
 
-def paper_lots(aids: AidsConfig | None = None, device: str = "cpu"
+def check_substeps(value: object) -> int:
+    """``value`` as ``ParkingConfig.collision_substeps`` takes it, or ValueError naming
+    --collision-substeps and its range."""
+    if not is_integer(value) or not 1 <= value <= MAX_COLLISION_SUBSTEPS:
+        raise ValueError(f"--collision-substeps must be an int in [1, "
+                         f"{MAX_COLLISION_SUBSTEPS}], got {value!r}")
+    return int(value)
+
+
+def paper_lots(aids: AidsConfig | None = None, device: str = "cpu", collision_substeps: int = 1
                ) -> Callable[[float, int, int], TransformedEnv]:
     """``make_env`` of an agent that reads the paper's observation as it is: ``episodes``
-    lots of the paper's task at ``occupancy`` from ``seed``, with ``aids`` around it."""
+    lots of the paper's task (with ``collision_substeps`` poses tested per step of dt) at
+    ``occupancy`` from ``seed``, with ``aids`` around it."""
+    task = ParkingConfig(collision_substeps=check_substeps(collision_substeps))
+
     def make_env(occupancy: float, episodes: int, seed: int) -> TransformedEnv:
-        base = ParkingEnv(episodes, device=device, seed=seed, aids=aids)
+        base = ParkingEnv(episodes, device=device, seed=seed, config=task, aids=aids)
         base.occupancy = occupancy
         return TransformedEnv(base)
     return make_env
 
 
-def load_expert(name: str, device: str = "cpu") -> Agent:
-    """A hand-written agent (EXPERTS) on ``device``: the paper's env with the expert's aids,
-    its policy reading the env's state (:class:`torchpark.experts.PlannerExpert`)."""
+def load_expert(name: str, device: str = "cpu", collision_substeps: int = 1) -> Agent:
+    """A hand-written agent (EXPERTS) on ``device``: the paper's env (with
+    ``collision_substeps`` poses tested per step of dt) with the expert's aids, its policy
+    reading the env's state (:class:`torchpark.experts.PlannerExpert`)."""
     if name not in EXPERTS:
         raise ValueError(f"--expert must be one of {list(EXPERTS)}, got {name!r}")
     check_device(device, "--device")
     config = ExpertConfig()
-    return Agent(paper_lots(config.aids(), device), lambda env: PlannerExpert(env, config),
-                 ParkingConfig().max_steps, composition(config.aids(), EXPERTS[name],
-                                                        expert=True))
+    return Agent(paper_lots(config.aids(), device, collision_substeps),
+                 lambda env: PlannerExpert(env, config), ParkingConfig().max_steps,
+                 composition(config.aids(), EXPERTS[name], expert=True), collision_substeps)
 
 
 def evaluate_agent(agent: Agent, episodes: int, levels=PAPER_LEVELS, seed: int = 1,
@@ -236,25 +267,30 @@ def record_rollouts(agent: Agent, out: Path, video_format: str = "mp4",
 def evaluate(path: str, episodes: int = 200, levels=PAPER_LEVELS, seed: int = 1,
              videos: Path | None = None, video_format: str = "mp4",
              device: str | None = None, aids: list[str] | None = None,
-             sample: int | None = None) -> list[dict[str, float]]:
+             sample: int | None = None, collision_substeps: int | None = None
+             ) -> list[dict[str, float]]:
     """The table's rows, one per level; with ``videos``, also one rollout video per level
     (``rollout_occ{percent}.{video_format}``) of the policy in that directory. ``device``:
     where the envs and the policy run (default: the checkpoint's training device). ``aids``:
     NAME=VALUE settings of the agent's aids (:func:`with_aids`). ``sample``: a torch seed,
-    actions drawn from the policy's distribution (seeded so at each level), not its mode."""
-    agent = checkpoint_agent(path, device, aids, sample)
+    actions drawn from the policy's distribution (seeded so at each level), not its mode.
+    ``collision_substeps``: the collision test's poses per step of dt (default: the task's
+    own; ``ParkingConfig.collision_substeps``)."""
+    agent = checkpoint_agent(path, device, aids, sample, collision_substeps)
     rows = evaluate_agent(agent, episodes, levels, seed, sample)
     if videos is not None:
         record_rollouts(agent, videos, video_format, levels, seed, sample)
     return rows
 
 
-def to_markdown(rows: list[dict[str, float]]) -> str:
+def to_markdown(rows: list[dict[str, float]], collision_substeps: int = 1) -> str:
     """The rows as a Markdown table, under a line saying what the agent is made of (when the
-    rows carry the COMPOSITION columns)."""
+    rows carry the COMPOSITION columns) and one naming the collision test
+    (:func:`collision_test`)."""
     lines = []
     if rows and all(c in rows[0] for c in COMPOSITION):
         lines += ["; ".join(f"{c.replace('_', ' ')}: {rows[0][c]}" for c in COMPOSITION), ""]
+    lines += [collision_test(collision_substeps), ""]
     lines += ["| " + " | ".join(RESULTS) + " |", "|" + "---:|" * len(RESULTS)]
     for row in rows:
         lines.append("| " + " | ".join(
@@ -273,13 +309,14 @@ SUMMARY = {"occupancy": "occupancy", "success": "C < 4e-4", "success_4e-3": "4e-
 WIDTH = 100
 
 
-def summary(rows: list[dict[str, float]]) -> str:
+def summary(rows: list[dict[str, float]], collision_substeps: int = 1) -> str:
     """The rows as a terminal reads them, within WIDTH columns: what the agent is made of
-    (wrapped) over the SUMMARY columns."""
+    (wrapped) and the collision test over the SUMMARY columns."""
     lines = []
     if rows and all(c in rows[0] for c in COMPOSITION):
         made_of = "; ".join(f"{c.replace('_', ' ')}: {rows[0][c]}" for c in COMPOSITION)
         lines += [*textwrap.wrap(made_of, WIDTH), ""]
+    lines += [*textwrap.wrap(collision_test(collision_substeps), WIDTH), ""]
     width = WIDTH // len(SUMMARY)
     lines.append("".join(f"{name:>{width}}" for name in SUMMARY.values()))
     for row in rows:
@@ -288,10 +325,10 @@ def summary(rows: list[dict[str, float]]) -> str:
     return "\n".join(lines)
 
 
-def write_tables(rows: list[dict], out: Path) -> str:
-    """Write ``evaluation.md`` and ``evaluation.csv`` (COLUMNS) into ``out``, each whole or
-    not at all; returns the Markdown."""
-    table = to_markdown(rows)
+def write_tables(rows: list[dict], out: Path, collision_substeps: int = 1) -> str:
+    """Write ``evaluation.md`` (:func:`to_markdown`) and ``evaluation.csv`` (COLUMNS) into
+    ``out``, each whole or not at all; returns the Markdown."""
+    table = to_markdown(rows, collision_substeps)
     write_csv(out / "evaluation.csv", rows, COLUMNS)
     write_text(out / "evaluation.md", table + "\n")
     return table
@@ -360,6 +397,10 @@ def main(argv: list[str] | None = None) -> None:
                              "with TORCH_SEED at each level) instead of taking its mode")
     parser.add_argument("--aids", nargs="+", default=[], metavar="NAME=VALUE",
                         help="put the policy under other aids: " + ", ".join(EVALUATION_AIDS))
+    parser.add_argument("--collision-substeps", type=int, default=None, metavar="K",
+                        help="test K poses per step of dt along the car's motion for collision "
+                             "(default: the agent's task; 1, the paper's end-pose test, for "
+                             "--expert)")
     args = parser.parse_args(argv)
     if not 1 <= args.episodes <= MAX_EPISODES:
         parser.error(f"--episodes must be in [1, {MAX_EPISODES}], got {args.episodes}")
@@ -377,8 +418,11 @@ def main(argv: list[str] | None = None) -> None:
     videos = None if args.videos == "none" else args.videos
     try:
         check_seed(args.seed, "--seed")
-        agent = load_expert(args.expert, args.device or "cpu") if args.expert is not None \
-            else checkpoint_agent(args.checkpoint, args.device, args.aids, args.sample)
+        substeps = 1 if args.collision_substeps is None else args.collision_substeps
+        agent = load_expert(args.expert, args.device or "cpu", substeps) \
+            if args.expert is not None \
+            else checkpoint_agent(args.checkpoint, args.device, args.aids, args.sample,
+                                  args.collision_substeps)
         with locked(out, "--out"):
             outputs = [out / "evaluation.md", out / "evaluation.csv"]
             if videos is not None:
@@ -390,8 +434,8 @@ def main(argv: list[str] | None = None) -> None:
                                  f"pass --out another directory, or --overwrite to replace "
                                  f"them")
             rows = evaluate_agent(agent, args.episodes, seed=args.seed, sample=args.sample)
-            print(summary(rows), flush=True)  # the table first: whatever the disk says
-            write_tables(rows, out)
+            print(summary(rows, agent.collision_substeps), flush=True)  # the table first
+            write_tables(rows, out, agent.collision_substeps)
             print(f"every column: {out / 'evaluation.md'} (and .csv)")
             if videos is not None:
                 record_rollouts(agent, out, videos, seed=args.seed, sample=args.sample)

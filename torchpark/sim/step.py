@@ -21,7 +21,7 @@ from torchpark.sim.episodes import LotDraw, choose_start, occupied_slots
 from torchpark.sim.observation import observe
 from torchpark.sim.records import replace
 from torchpark.sim.reward import is_success, parking_reward
-from torchpark.sim.vehicle import bicycle_step, clamp_action, vehicle_obb
+from torchpark.sim.vehicle import bicycle_step, clamp_action, motion_poses, vehicle_obb
 from torchpark.sim.world import World, touches_obstacle
 
 
@@ -87,10 +87,17 @@ def mux_rows(mask: Tensor, new: tuple, old: tuple) -> tuple:
 def move(pose: Tensor, v: Tensor, delta: Tensor, present: Tensor, world: World,
          cfg: ParkingConfig) -> tuple[Tensor, Tensor]:
     """One bicycle step of dt from rear-axle poses [..., 3] at (v m/s, delta rad) [...], and
-    whether the vehicle box then touches a present obstacle (``present`` [..., M]): the new
+    whether the vehicle box touches a present obstacle (``present`` [..., M]): at the end
+    pose (the paper's test), or with ``cfg.collision_substeps`` = K > 1 at any of K poses
+    along the step's motion (:func:`~torchpark.sim.vehicle.motion_poses`). Returns the new
     poses [..., 3] and bool [...]."""
-    pose = bicycle_step(pose, v, delta, cfg.vehicle)
-    return pose, touches_obstacle(vehicle_obb(pose, cfg.vehicle), world, present)
+    end = bicycle_step(pose, v, delta, cfg.vehicle)
+    substeps = cfg.collision_substeps
+    if substeps == 1:
+        return end, touches_obstacle(vehicle_obb(end, cfg.vehicle), world, present)
+    poses = motion_poses(pose, end, v, delta, substeps, cfg.vehicle)
+    hits = touches_obstacle(vehicle_obb(poses, cfg.vehicle), world, present[..., None, :])
+    return end, hits.any(dim=-1)
 
 
 def commit(state: ParkingState, pose: Tensor, speed: Tensor, collision: Tensor, world: World,

@@ -31,6 +31,25 @@ def bicycle_step(pose: Tensor, v: Tensor, delta: Tensor, cfg: VehicleConfig) -> 
     return torch.stack((x, y, psi), dim=-1)
 
 
+def motion_poses(pose: Tensor, end: Tensor, v: Tensor, delta: Tensor, substeps: int,
+                 cfg: VehicleConfig) -> Tensor:
+    """Poses [..., substeps, 3] evenly spaced along the motion of one :func:`bicycle_step`
+    from rear-axle poses ``pose`` [..., 3] at (v m/s, delta rad) [...], the last one its end
+    pose ``end`` [..., 3] (the step's own result, so that its test is the end pose's).
+
+    The Euler step read as a motion over dt: the rear axle moves straight along the start
+    heading psi at speed v while the heading turns uniformly, so at the fraction s of dt the
+    pose is (x + s v dt cos psi, y + s v dt sin psi, psi + s v dt tan(delta) / L); the poses
+    are those at s = 1/substeps, 2/substeps, ..., 1 (headings not wrapped before the last).
+    """
+    fraction = torch.arange(1, substeps, device=pose.device, dtype=pose.dtype) / substeps
+    x, y, psi = (t[..., None] for t in pose.unbind(-1))
+    step = (v * cfg.dt)[..., None] * fraction
+    inner = torch.stack((x + step * torch.cos(psi), y + step * torch.sin(psi),
+                         psi + step * torch.tan(delta)[..., None] / cfg.wheelbase), dim=-1)
+    return torch.cat((inner, end[..., None, :]), dim=-2)
+
+
 def vehicle_obb(pose: Tensor, cfg: VehicleConfig) -> OrientedBoxes:
     """Footprint of vehicles at rear-axle poses [..., 3] as :class:`OrientedBoxes` [...].
 
