@@ -13,7 +13,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 from torchrl.collectors import Collector
-from torchrl.envs import InitTracker, TransformedEnv
+from torchrl.envs import EnvBase, InitTracker, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
 from tests.conftest import act, random_actions
@@ -190,6 +190,35 @@ def test_compiled_step_is_one_graph_and_matches_eager(config, aids, device):
     assert torch.equal(eager["collision"], compiled["collision"])
     assert torch.allclose(eager["observation"], compiled["observation"], atol=1e-4)
     assert torch.allclose(eager["reward"], compiled["reward"], atol=1e-3)
+
+
+@pytest.mark.parametrize("aids", [None, AidsConfig(action_repeat=2, brake=BrakeConfig(),
+                                                   docking=DockingConfig(),
+                                                   observe_position=True)],
+                         ids=["paper", "aided"])
+def test_step_and_maybe_reset_gives_torchrls_generic_result(aids):
+    """ParkingEnv's own step_and_maybe_reset returns the tensordicts of torchrl's generic
+    path (EnvBase's), key for key and bit for bit, through partial and full resets, the
+    action zeroed in the reset rows as torchrl pads it."""
+    short = ParkingConfig(max_steps=3)  # episodes end by truncation too
+    ours, generic = (ParkingEnv(16, seed=3, config=short, aids=aids) for _ in range(2))
+    td_ours, td_generic = ours.reset(), generic.reset()
+    partial = full = 0
+    # Standing still first: every row truncates at once (a full reset); then the step
+    # counts spread, and rows end at different steps (partial resets).
+    for step, action in enumerate(torch.cat((torch.zeros(3, 16, 2),
+                                             random_actions(16, 100, 1)))):
+        if step == 3:
+            ours.randomize_step_counts(), generic.randomize_step_counts()
+        out_ours, td_ours = ours.step_and_maybe_reset(td_ours.set("action", action))
+        out_generic, td_generic = EnvBase._step_and_maybe_reset(
+            generic, td_generic.set("action", action))
+        for a, b in ((out_ours, out_generic), (td_ours, td_generic)):
+            assert set(a.keys(True, True)) == set(b.keys(True, True))
+            assert all(torch.equal(a[k], b[k]) for k in a.keys(True, True))
+        done = out_ours["next", "done"]
+        partial, full = partial + int(done.any() & ~done.all()), full + int(done.all())
+    assert partial > 20 and full > 0
 
 
 def test_randomize_step_counts_spreads_the_first_timeouts():

@@ -597,6 +597,31 @@ class ParkingEnv(EnvBase):
         self._started = True
         return self._reset_output()
 
+    def _step_and_maybe_reset(self, tensordict: TensorDictBase
+                              ) -> tuple[TensorDictBase, TensorDictBase]:
+        """torchrl's step and reset of the ended rows (what ``env.step_and_maybe_reset``, the
+        rollouts and the collectors call), the reset's merge written for this env: after
+        :meth:`_reset` of the done rows the env's outputs hold, for every row, what torchrl's
+        generic merge (a ``where`` per key) would give, so they replace those keys as they
+        are; the other keys (the action, a policy's outputs) are zeroed in the reset rows when
+        not every row resets, as torchrl's merge pads them. The same tensordicts as the
+        generic path (tested), without its merge of the env's own keys."""
+        if self._post_step_mdp_hooks is not None:  # a hook of torchrl's: its generic path
+            return super()._step_and_maybe_reset(tensordict)
+        if tensordict.device != self.device:
+            tensordict = tensordict.to(self.device)
+        tensordict = self.step(tensordict)
+        tensordict_ = self._step_mdp(tensordict)
+        done = tensordict.get(("next", "done"))
+        if done.any():  # the read-back torchrl's path makes too
+            rows = TensorDict({"_reset": done}, batch_size=self.batch_size, device=self.device)
+            fresh = self._reset(rows)
+            others = tensordict_.exclude(*fresh.keys())
+            tensordict_.update(fresh)
+            if not others.is_empty() and not done.all():  # torchrl pads partial resets only
+                tensordict_.update(others.masked_fill(done.reshape(self.batch_size), 0))
+        return tensordict, tensordict_
+
     def _draw_episodes_ahead(self) -> None:
         """Draw N new episodes (lots at the current occupancy, start poses, their first
         observations) from the env's generator, in one batch, replacing those not handed
