@@ -97,9 +97,6 @@ def check_device(device: object, name: str = "device") -> None:
                          f"device(s) here")
 
 
-_MISSING = object()
-
-
 def _first_difference(saved: object, ours: object, default: object = None, name: str = ""
                       ) -> str | None:
     """Where two nested dicts of plain data first differ, as ``"name=<saved> in the
@@ -109,8 +106,7 @@ def _first_difference(saved: object, ours: object, default: object = None, name:
     if isinstance(saved, dict) and isinstance(ours, dict):
         default = default if isinstance(default, dict) else {}
         for key in sorted(set(saved) | set(ours), key=str):
-            theirs = saved.get(key, default.get(key, _MISSING))
-            found = _first_difference(None if theirs is _MISSING else theirs, ours.get(key),
+            found = _first_difference(saved.get(key, default.get(key)), ours.get(key),
                                       default.get(key), f"{name}.{key}".lstrip("."))
             if found is not None:
                 return found
@@ -613,12 +609,14 @@ class ParkingEnv(EnvBase):
         tensordict = self.step(tensordict)
         tensordict_ = self._step_mdp(tensordict)
         done = tensordict.get(("next", "done"))
-        if done.any():  # the read-back torchrl's path makes too
+        # One read-back, as torchrl's path makes for done.any().
+        any_done, all_done = torch.stack((done.any(), done.all())).tolist()
+        if any_done:
             rows = TensorDict({"_reset": done}, batch_size=self.batch_size, device=self.device)
             fresh = self._reset(rows)
             others = tensordict_.exclude(*fresh.keys())
             tensordict_.update(fresh)
-            if not others.is_empty() and not done.all():  # torchrl pads partial resets only
+            if not others.is_empty() and not all_done:  # torchrl pads partial resets only
                 tensordict_.update(others.masked_fill(done.reshape(self.batch_size), 0))
         return tensordict, tensordict_
 

@@ -2,7 +2,7 @@
 
     python -m trainers.evaluate CHECKPOINT [--episodes 200] [--out DIR] [--seed 1]
                                            [--videos mp4|gif|none] [--aids NAME=VALUE ...]
-                                           [--sample TORCH_SEED]
+                                           [--sample TORCH_SEED] [--collision-substeps K]
     python -m trainers.evaluate --expert planner --out DIR [...]
 
 Runs the deterministic policy (the TanhNormal's mode; with ``--sample S``, actions drawn from
@@ -19,7 +19,10 @@ percentile of the final position and heading errors; with ``--videos`` (mp4 by d
 one rollout video per level. ``--aids`` puts the checkpoint's policy under other agent-side
 aids than it was trained with (EVALUATION_AIDS: the brake and the docking law, which act
 around the network and leave its input and output as trained), e.g. a policy alone as the
-approach of a hybrid: ``--aids brake.steer_clear=5 docking={}``.
+approach of a hybrid: ``--aids brake.steer_clear=5 docking={}``. The collision test (named
+in the table) is the agent's task's, the paper's end pose unless trained otherwise;
+``--collision-substeps K`` tests K poses along each step's motion instead
+(``ParkingConfig.collision_substeps``).
 ``--expert planner`` evaluates the hand-written agent (:mod:`torchpark.experts`: approach
 planner, docking law, brake) on the same lots, as a reference any learned agent can be set
 beside.
