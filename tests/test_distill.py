@@ -13,6 +13,7 @@ import dataclasses
 import pytest
 import torch
 from tensordict import TensorDict
+from torch.utils._pytree import tree_flatten
 from torchrl.envs import Compose, TransformedEnv
 
 import trainers.distill as distill_module
@@ -349,3 +350,64 @@ def test_with_retry_the_planner_teacher_backs_out_where_the_test_cannot_pass(tea
     # the near misses: the law's pass back, at full speed (not the planner's way out of the
     # slot, forwards or backwards wherever its tables say)
     assert (speed[0::2] == -law.max_speed).all()
+
+
+def test_a_resumed_run_gives_the_checkpoints_of_a_run_never_stopped(teacher_path, tmp_path,
+                                                                    capsys, coarse_planner):
+    flags = ["--envs", "8", "--steps", "12", "--epochs", "2", "--dagger-epochs", "1",
+             "--yardstick", "4", "--approach", "16", "--position"]
+    whole, parts = tmp_path / "whole", tmp_path / "parts"
+    main([teacher_path, "--out", str(whole), "--iterations", "3", *flags])
+    main([teacher_path, "--out", str(parts), "--iterations", "1", *flags])
+    main([teacher_path, "--out", str(parts), "--iterations", "3", "--resume", *flags])
+    assert "resumed after iteration 1 of 3" in capsys.readouterr().out
+    for name in ("checkpoint_final.pt", "checkpoint_best.pt"):
+        a, b = (torch.load(d / name, weights_only=True) for d in (whole, parts))
+        assert a["trained_by"] == b["trained_by"] and a["frames"] == b["frames"]
+        for key in ("actor", "obs_norm"):
+            leaves, spec = tree_flatten(a[key])
+            theirs, their_spec = tree_flatten(b[key])
+            assert spec == their_spec
+            assert all(torch.equal(x, y) if isinstance(x, torch.Tensor) else x == y
+                       for x, y in zip(leaves, theirs, strict=True))
+
+    def table(d):  # the wall-clock aside
+        return [{k: v for k, v in r.items() if k != "wall_s"}
+                for r in csv.DictReader((d / "dagger.csv").read_text().splitlines())]
+    assert table(whole) == table(parts) and len(table(parts)) == 3
+
+
+@pytest.mark.parametrize("change, error", [
+    (["--iterations", "1", "--resume"], "--iterations must be >= 2"),
+    (["--iterations", "3", "--resume", "--lr", "0.01"], "has lr=0.001, this command lr=0.01"),
+    (["--iterations", "3", "--resume", "--overwrite"], "pass one of them"),
+])
+def test_resuming_refuses_what_would_not_continue_the_run(teacher_path, tmp_path, capsys,
+                                                         coarse_planner, change, error):
+    flags = ["--envs", "4", "--steps", "4", "--epochs", "1", "--dagger-epochs", "1",
+             "--yardstick", "2", "--approach", "0"]
+    out = tmp_path / "run"
+    main([teacher_path, "--out", str(out), "--iterations", "2", *flags])
+    capsys.readouterr()
+    before = (out / "dagger_state.pt").read_bytes()
+    with pytest.raises(SystemExit):
+        main([teacher_path, "--out", str(out), *flags, *change])
+    assert error in capsys.readouterr().err
+    assert (out / "dagger_state.pt").read_bytes() == before
+
+
+def test_resuming_refuses_another_teacher_or_no_run(teacher_path, tmp_path, capsys,
+                                                    coarse_planner):
+    flags = ["--envs", "4", "--steps", "4", "--epochs", "1", "--dagger-epochs", "1",
+             "--yardstick", "2", "--approach", "0", "--iterations", "2"]
+    with pytest.raises(SystemExit):
+        main([teacher_path, "--out", str(tmp_path / "empty"), "--resume", *flags])
+    assert "dagger_state.pt does not exist" in capsys.readouterr().err
+    out = tmp_path / "run"
+    main([teacher_path, "--out", str(out), *flags[:-1], "1"])
+    other = tmp_path / "other.pt"
+    torch.save({**torch.load(teacher_path, weights_only=True), "frames": 1}, other)
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        main([str(other), "--out", str(out), "--resume", *flags])
+    assert "distilled from another teacher" in capsys.readouterr().err

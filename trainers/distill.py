@@ -8,6 +8,7 @@ drives the paper's env with nothing around it.
                                              [--seed 0] [--overwrite] [--clearance-features]
                                              [--position] [--settle 0.05] [--retry 1]
                                              [--lr-decay] [--width 512] [--depth 3]
+                                             [--resume]
 
 TEACHER is a hybrid checkpoint (``results/fast/checkpoint_final.pt``): its docking law and
 brake join the approach planner in the expert (:class:`Teacher`), its network sizes are the
@@ -45,12 +46,21 @@ guarantee is for the best policy of the sequence, not the last) and ``dagger.csv
 iteration the student's success at the three thresholds on the yardstick (starts 0-6 m
 behind the goal, within 1 m and 0.6 rad of the slot axis, empty lot) and from uniform starts
 at 0 % and 90 % occupancy. What each setting did: research/experiments.md.
+
+A run longer than a sitting resumes: after each iteration it saves its state
+(``dagger_state.pt``: the student, its optimiser, the normaliser, the random generators, the
+env's snapshot) and the iteration's labelled states (``dagger_data/``, about 90 MB an
+iteration at the defaults), and the same command with ``--resume`` continues from the last
+finished iteration, giving the checkpoints a run never stopped gives, bit for bit on the same
+machine and thread count. ``--iterations`` may be raised on resuming: more DAgger iterations
+on the same data.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import time
 import typing
 from dataclasses import dataclass
@@ -366,7 +376,10 @@ def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.
 
 
 # What a run writes into --out (none is replaced without --overwrite).
-OUTPUTS = ("checkpoint_final.pt", "checkpoint_best.pt", "dagger.csv")
+OUTPUTS = ("checkpoint_final.pt", "checkpoint_best.pt", "dagger.csv", "dagger_state.pt")
+# What --resume continues from: the run's state after its last finished iteration, and each
+# iteration's labelled states (inputs, labels, weights), in this folder.
+STATE, DATA = "dagger_state.pt", "dagger_data"
 # The checks that pick checkpoint_best.pt: the paper's test from uniform starts, empty and
 # at 90 % (their sum).
 BEST_BY = ("uniform_0_0.0004", "uniform_90_0.0004")
@@ -400,11 +413,54 @@ def check(actor, scfg: TrainConfig, obs_norm: dict, episodes: int, seed: int
     return row
 
 
+def run_state(out: Path, teacher_path: str, cfg: DistillConfig) -> dict:
+    """The state a run in ``out`` saved after its last finished iteration (:data:`STATE`),
+    checked to be of this teacher and these settings (``iterations`` aside: a run may be
+    continued to more), its data files present. Tensors and plain data only."""
+    path = out / STATE
+    if not path.exists():
+        raise ValueError(f"--resume: {path} does not exist (no run to continue in {out})")
+    saved = torch.load(path, map_location="cpu", weights_only=True)
+    ours = {**dataclasses.asdict(cfg), "iterations": None}
+    theirs = {**saved["distill"], "iterations": None}
+    differs = sorted(k for k in ours if ours[k] != theirs.get(k))
+    if differs:
+        key = differs[0]
+        raise ValueError(f"--resume: the run in {out} has {key}={theirs.get(key)!r}, this "
+                         f"command {key}={ours[key]!r} (only --iterations may change)")
+    if saved["teacher"] != teacher_digest(teacher_path):
+        raise ValueError(f"--resume: the run in {out} was distilled from another teacher "
+                         f"than {teacher_path}")
+    done = saved["iterations_done"]
+    if cfg.iterations < done:
+        raise ValueError(f"--iterations must be >= {done}, the iterations the run in {out} "
+                         f"has finished, got {cfg.iterations}")
+    missing = [p for p in map(lambda k: data_path(out, k), range(done)) if not p.exists()]
+    if missing:
+        raise ValueError(f"--resume: {missing[0]} is missing (the run's labelled data)")
+    return saved
+
+
+def teacher_digest(path: str) -> str:
+    """The SHA-256 of the teacher's checkpoint file (a resumed run must have the same)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def data_path(out: Path, iteration: int) -> Path:
+    """Where the states labelled in ``iteration`` are kept for a resumed run."""
+    return out / DATA / f"iteration_{iteration:03d}.pt"
+
+
 def distill(teacher_path: str, out: Path, cfg: DistillConfig,
-            planner: PlannerConfig | None = None) -> Path:
+            planner: PlannerConfig | None = None, resume: bool = False) -> Path:
     """Run DAgger; returns the final checkpoint's path. ``planner``: the teacher's
-    (:class:`Teacher`)."""
+    (:class:`Teacher`). After each iteration the run's state (the student, its optimiser,
+    the normaliser, the random generators, the env's snapshot, the rows of ``dagger.csv``)
+    goes to ``out/``:data:`STATE` and the iteration's labelled states to ``out/``:data:`DATA`;
+    ``resume`` continues from them exactly (the same checkpoints as a run never stopped,
+    bit for bit), to ``cfg.iterations``."""
     scfg = student_config(teacher_path, cfg)
+    saved = run_state(out, teacher_path, cfg) if resume else None
     torch.manual_seed(cfg.seed)
     generator = torch.Generator().manual_seed(cfg.seed)
     base = make_base_env(scfg, training=True)
@@ -421,7 +477,27 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     exponents = torch.tensor([cfg.speed_exponent, cfg.steer_exponent], device=base.device)
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
     data_in, data_out, data_weight, rows = [], [], [], []
-    frames = approach = 0
+    frames = approach = first = 0
+    elapsed = 0.0
+    if saved is not None:
+        first, frames, approach = (saved[k] for k in ("iterations_done", "frames",
+                                                       "approach_states"))
+        rows, elapsed = saved["rows"], saved["wall_s"]
+        actor.load_state_dict(saved["actor"])
+        optim.load_state_dict(saved["optim"])
+        norm.load_state_dict(saved["obs_norm"])
+        norm.freeze()
+        generator.set_state(saved["generator"])
+        torch.set_rng_state(saved["torch_rng"])
+        base.restore(saved["env"])
+        for iteration in range(first):
+            x, y, w = torch.load(data_path(out, iteration), map_location=base.device,
+                                 weights_only=True)
+            data_in.append(x)
+            data_out.append(y)
+            data_weight.append(w)
+        print(f"resumed after iteration {first} of {cfg.iterations} ({frames:,} labelled "
+              f"frames)", flush=True)
     parts = [name for name, on in (("gear head", True),
                                    ("clearance features", cfg.clearance_features),
                                    ("position", cfg.position)) if on]
@@ -431,8 +507,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
         source += f" (its law creeping to the goal within {cfg.settle:g} m"
         source += f", retrying {cfg.retry:g} m back where the test cannot pass)" if cfg.retry \
             else ")"
-    started = time.perf_counter()
-    for iteration in range(cfg.iterations):
+    started = time.perf_counter() - elapsed
+    for iteration in range(first, cfg.iterations):
         batches = []
         for level in PAPER_LEVELS:
             base.occupancy = level
@@ -449,10 +525,12 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
             batches.append((x, power_map_inverse(y, high, exponents),
                             torch.full((x.shape[0],), cfg.approach_weight, device=x.device)))
             approach += x.shape[0]
-        for x, y, weight in batches:
-            data_in.append(x)
-            data_out.append(y)
-            data_weight.append(weight)
+        labelled = [torch.cat(column) for column in zip(*batches, strict=True)]
+        data_path(out, iteration).parent.mkdir(exist_ok=True)
+        save_torch(labelled, data_path(out, iteration))
+        data_in.append(labelled[0])
+        data_out.append(labelled[1])
+        data_weight.append(labelled[2])
         x, y, w = torch.cat(data_in), torch.cat(data_out), torch.cat(data_weight)
         epochs = cfg.epochs if iteration == 0 else cfg.dagger_epochs
         loss = fit(actor, norm.to_observation_norm(), x, y, w, epochs, cfg, optim, generator)
@@ -473,6 +551,15 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
         save_torch(checkpoint, out / "checkpoint_final.pt")
         if score(row) >= max(map(score, rows)):
             save_torch(checkpoint, out / "checkpoint_best.pt")
+        # Last: a run killed before this line resumes from the iteration before, whose
+        # files the redone iteration rewrites as they were.
+        save_torch({"distill": dataclasses.asdict(cfg), "teacher": teacher_digest(teacher_path),
+                    "iterations_done": iteration + 1, "frames": frames,
+                    "approach_states": approach, "rows": rows, "wall_s": row["wall_s"],
+                    "actor": actor.state_dict(), "optim": optim.state_dict(),
+                    "obs_norm": norm.state_dict(), "generator": generator.get_state(),
+                    "torch_rng": torch.get_rng_state(), "env": base.snapshot()},
+                   out / STATE)
     return out / "checkpoint_final.pt"
 
 
@@ -484,6 +571,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", required=True, help="directory of the student's files")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the outputs already in --out (refused by default)")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run in --out from its last finished iteration, "
+                             "exactly (the same teacher and settings; --iterations may be "
+                             "raised)")
     hints = typing.get_type_hints(DistillConfig)
     for field in dataclasses.fields(DistillConfig):
         flag = f"--{field.name.replace('_', '-')}"
@@ -500,12 +591,15 @@ def main(argv: list[str] | None = None) -> None:
     try:
         cfg = DistillConfig(**{f.name: getattr(args, f.name)
                                for f in dataclasses.fields(DistillConfig)})
+        if args.resume and args.overwrite:
+            raise ValueError("--resume continues the run in --out, --overwrite replaces it: "
+                             "pass one of them")
         with locked(out, "--out"):
             existing = [name for name in OUTPUTS if (out / name).exists()]
-            if existing and not args.overwrite:
+            if existing and not (args.overwrite or args.resume):
                 raise ValueError(f"{out / existing[0]} exists ({len(existing)} of the outputs "
                                  f"do): pass another --out, or --overwrite to replace them")
-            print(distill(args.teacher, out, cfg))
+            print(distill(args.teacher, out, cfg, resume=args.resume))
     except (ValueError, OSError) as err:
         parser.exit(2, f"{parser.prog}: error: {str(err).splitlines()[0]}\n")
 
