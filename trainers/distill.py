@@ -116,7 +116,12 @@ class DistillConfig:
     (:attr:`~torchpark.aids.config.DockingConfig.settle`); ``retry``: only where the test
     can still pass, else it reverses ``retry`` m and drives in again
     (:attr:`~torchpark.aids.config.DockingConfig.retry`); ``lr_decay``: each fit's learning
-    rate falls from ``lr`` to 0 along a cosine; ``epochs`` / ``dagger_epochs``: passes over
+    rate falls from ``lr`` to 0 along a cosine; ``law_reach`` / ``law_lateral`` /
+    ``law_heading``: the funnel the teacher's law takes over in
+    (:attr:`~torchpark.experts.PlannerConfig.law_reach`; None: the planner's target);
+    ``brake_margin``: the teacher's brake keeps the car's box that far (m) from every
+    obstacle (:attr:`~torchpark.aids.config.BrakeConfig.margin`; 0: the checkpoint's
+    brake); ``epochs`` / ``dagger_epochs``: passes over
     the data after the first / each later iteration; ``width`` / ``depth``: the student's
     hidden layers (None: the teacher's sizes)."""
 
@@ -139,6 +144,10 @@ class DistillConfig:
     position: bool = False
     settle: float = 0.0
     retry: float = 0.0
+    law_reach: float | None = None
+    law_lateral: float | None = None
+    law_heading: float | None = None
+    brake_margin: float = 0.0
     width: int | None = None
     depth: int | None = None
     yardstick: int = 200
@@ -162,6 +171,8 @@ class DistillConfig:
         require(0.0 <= self.near_goal <= 1.0, "DistillConfig.near_goal", "in [0, 1]",
                 self.near_goal)
         require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
+        require(0.0 <= self.brake_margin <= 1.0, "DistillConfig.brake_margin", "in [0, 1] m",
+                self.brake_margin)
         for name in ("settle", "retry"):
             value = getattr(self, name)
             require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
@@ -189,16 +200,20 @@ class Teacher:
     episodes ended."""
 
     def __init__(self, path: str, env: TransformedEnv, settle: float = 0.0,
-                 retry: float = 0.0, planner: PlannerConfig | None = None) -> None:
+                 retry: float = 0.0, planner: PlannerConfig | None = None,
+                 brake_margin: float = 0.0) -> None:
         cfg, _ = load_trained(path)
         _, aids = env_configs(cfg, training=False)
         if aids is None or aids.docking is None:
             raise ValueError(f"teacher {path!r} has no docking law to take over from the "
                              f"planner: distil a hybrid agent with one")
+        if brake_margin and aids.brake is None:
+            raise ValueError(f"--brake-margin {brake_margin:g}: teacher {path!r} has no brake")
         self.expert = ExpertConfig(
             planner=planner if planner is not None else PlannerConfig(),
             docking=dataclasses.replace(aids.docking, settle=settle, retry=retry),
-            brake=aids.brake)
+            brake=dataclasses.replace(aids.brake, margin=brake_margin) if brake_margin
+            else aids.brake)
         self.aids = self.expert.aids()
         self.base = env.base_env
         config = self.base.config
@@ -471,7 +486,12 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     # outside the env to the final-approach states.
     features = Compose(*[t.clone() for t in inputs[:-1]
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
-    teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, planner)
+    funnel = {name: getattr(cfg, name) for name in ("law_reach", "law_lateral", "law_heading")
+              if getattr(cfg, name) is not None}
+    if funnel:
+        planner = dataclasses.replace(planner if planner is not None else PlannerConfig(),
+                                      **funnel)
+    teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, planner, cfg.brake_margin)
     actor, _ = build_models(scfg)
     high = base.action_spec.space.high[0]
     exponents = torch.tensor([cfg.speed_exponent, cfg.steer_exponent], device=base.device)
