@@ -154,6 +154,7 @@ def test_dist_config_errors_name_the_field():
         (["dist.num_collectors=2"], "dist.num_collectors"),
         (["dist.world_size=3"], "env.num_envs"),
         (["dist.world_size=2", "loss.mini_batch_size=255"], "loss.mini_batch_size"),
+        (["dist.world_size=2", "optim.compile_update=true"], "optim.compile_update"),
     ):
         with pytest.raises(ValueError, match=field.replace(".", r"\.")):
             load_config("smoke", overrides)

@@ -11,6 +11,7 @@ import sys
 import textwrap
 import time
 import typing
+from functools import partial
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -31,7 +32,7 @@ from torchpark.transforms.features import GOAL_FEATURES
 from trainers.config import ModelConfig, TrainConfig, env_configs, load_config
 from trainers.evaluate import COLUMNS, evaluate
 from trainers.evaluate import main as evaluate_main
-from trainers.ppo import main, recompute_log_prob_, train
+from trainers.ppo import main, ppo_step, recompute_log_prob_, train
 from trainers.utils import NORMALISED, make_env, make_ppo_models, reset_exploration
 
 TAGS = {
@@ -163,6 +164,30 @@ def test_the_recomputed_log_prob_makes_the_first_ratio_one_on_saturated_draws():
     recompute_log_prob_(actor, td, loss.tensor_keys.sample_log_prob)
     assert (td[key] - stored).abs().max() > 100
     assert loss(td.clone())["kl_approx"].item() == 0.0
+
+
+def test_the_compiled_update_takes_the_eager_updates_steps():
+    """optim.compile_update: three PPO updates through torch.compile move the networks as
+    the eager ones do (to float32 rounding: inductor sums in another order) and return the
+    same losses."""
+    runs = []
+    for compiled in (False, True):
+        torch.manual_seed(0)
+        actor, critic, td = saturated_draws(0.0)
+        recompute_log_prob_(actor, td, "action_log_prob")
+        loss = ClipPPOLoss(actor, critic, normalize_advantage=False)
+        start = torch.cat([p.detach().flatten() for p in loss.parameters()])
+        optim = torch.optim.Adam(loss.parameters(), lr=1e-2)
+        update = partial(ppo_step, loss, optim, max_grad_norm=0.5)
+        if compiled:
+            update = torch.compile(update)
+        losses = torch.stack([update(td[i::3].clone())["loss_objective"] for i in range(3)])
+        runs.append((start, torch.cat([p.detach().flatten() for p in loss.parameters()]),
+                     losses.detach()))
+    (start, eager, eager_losses), (_, compiled, compiled_losses) = runs
+    assert (eager - start).abs().max() > 1e-3  # the updates moved the networks
+    torch.testing.assert_close(compiled, eager, rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(compiled_losses, eager_losses, rtol=1e-4, atol=1e-5)
 
 
 def test_a_start_checkpoint_with_another_agent_or_a_resume_beside_it_is_refused(smoke_run,
