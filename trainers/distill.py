@@ -49,11 +49,11 @@ at 0 % and 90 % occupancy. What each setting did: research/experiments.md.
 
 A run longer than a sitting resumes: after each iteration it saves its state
 (``dagger_state.pt``: the student, its optimiser, the normaliser, the random generators, the
-env's snapshot) and the iteration's labelled states (``dagger_data/``, about 90 MB an
-iteration at the defaults), and the same command with ``--resume`` continues from the last
-finished iteration, giving the checkpoints a run never stopped gives, bit for bit on the same
-machine and thread count. ``--iterations`` may be raised on resuming: more DAgger iterations
-on the same data.
+env's snapshot) and the iteration's labelled states (``dagger_data/``, about 60 MB an
+iteration at the defaults, 100 MB the first), and the same command with ``--resume``
+continues from the last finished iteration, giving the checkpoints a run never stopped
+gives, bit for bit on the same machine and thread count. ``--iterations`` may be raised on
+resuming: more DAgger iterations on the same data.
 """
 
 from __future__ import annotations
