@@ -100,9 +100,9 @@ class OptimConfig:
     lr: float = 3e-4
     max_grad_norm: float = 0.5
     # torch.compile each PPO update (the loss, its backward pass, the gradient clipping and
-    # Adam's step in one function), as torchrl's own recipes do; one rank only. Where the
-    # update is compute-bound (the CPU presets' 1,024-row minibatches: 1.17x per update,
-    # after ~40 s of compiling) it does not pay; it removes the Python between kernels.
+    # Adam's step in one function), as torchrl's own recipes do; one rank only. It removes
+    # the Python between kernels; where the update is compute-bound (the CPU presets'
+    # 1,024-row minibatches) it pays little for tens of seconds of compiling.
     compile_update: bool = False
 
 
