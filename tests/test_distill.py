@@ -241,8 +241,8 @@ def test_a_run_writes_a_policy_alone_the_evaluator_reads(teacher_path, tmp_path,
     assert "--overwrite" in capsys.readouterr().err
     (out / "checkpoint_final.pt").unlink()
     with pytest.raises(SystemExit):
-        main(args)  # any of its outputs (here the best checkpoint and the log) is kept
-    assert "checkpoint_best.pt exists (2 of the outputs do)" in capsys.readouterr().err
+        main(args)  # any of its outputs (here the best checkpoint, the log, the state) is kept
+    assert "checkpoint_best.pt exists (3 of the outputs do)" in capsys.readouterr().err
 
 
 def test_a_student_with_the_clearance_features_and_position_reads_them_everywhere(
