@@ -194,8 +194,7 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("settle", -0.01), ("settle", float("nan")),
                                           ("retry", -1.0), ("retry", float("inf")),
                                           ("width", 0), ("width", True), ("depth", 9),
-                                          ("depth", 2.0), ("brake_margin", -0.1),
-                                          ("brake_margin", 1.5)])
+                                          ("depth", 2.0)])
 def test_bad_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=rf"DistillConfig\.{field}"):
         DistillConfig(**{field: value})
@@ -412,20 +411,11 @@ def test_resuming_refuses_another_teacher_or_no_run(teacher_path, tmp_path, caps
     with pytest.raises(SystemExit):
         main([str(other), "--out", str(out), "--resume", *flags])
     assert "distilled from another teacher" in capsys.readouterr().err
-
-
-def test_the_teachers_funnel_and_brake_margin_are_the_runs(teacher_path, tmp_path,
-                                                           coarse_planner, monkeypatch):
-    built = []
-    monkeypatch.setattr(distill_module, "Teacher",
-                        lambda *args, **kwargs: built.append(Teacher(*args, **kwargs)) or
-                        (_ for _ in ()).throw(RuntimeError("built")))
-    cfg = DistillConfig(envs=4, steps=4, law_reach=8.0, law_lateral=2.0, law_heading=1.0,
-                        brake_margin=0.15)
-    with pytest.raises(RuntimeError, match="built"):
-        distill_module.distill(teacher_path, tmp_path, cfg)
-    expert = built[0].expert
-    assert (expert.planner.law_reach, expert.planner.law_lateral,
-            expert.planner.law_heading) == (8.0, 2.0, 1.0)
-    assert expert.planner.cell == COARSE_PLAN.cell and expert.brake.margin == 0.15
-    assert expert.aids().docking.lateral == 2.0  # the law takes over in that funnel
+    (out / "dagger_data" / "iteration_000.pt").write_bytes(b"not a torch file")
+    with pytest.raises(SystemExit):
+        main([teacher_path, "--out", str(out), "--resume", *flags])
+    assert "iteration_000.pt is not a distiller's labelled data" in capsys.readouterr().err
+    (out / "dagger_state.pt").write_bytes(b"not a torch file")
+    with pytest.raises(SystemExit):
+        main([teacher_path, "--out", str(out), "--resume", *flags])
+    assert "dagger_state.pt is not a distiller's state" in capsys.readouterr().err

@@ -116,12 +116,7 @@ class DistillConfig:
     (:attr:`~torchpark.aids.config.DockingConfig.settle`); ``retry``: only where the test
     can still pass, else it reverses ``retry`` m and drives in again
     (:attr:`~torchpark.aids.config.DockingConfig.retry`); ``lr_decay``: each fit's learning
-    rate falls from ``lr`` to 0 along a cosine; ``law_reach`` / ``law_lateral`` /
-    ``law_heading``: the funnel the teacher's law takes over in
-    (:attr:`~torchpark.experts.PlannerConfig.law_reach`; None: the planner's target);
-    ``brake_margin``: the teacher's brake keeps the car's box that far (m) from every
-    obstacle (:attr:`~torchpark.aids.config.BrakeConfig.margin`; 0: the checkpoint's
-    brake); ``epochs`` / ``dagger_epochs``: passes over
+    rate falls from ``lr`` to 0 along a cosine; ``epochs`` / ``dagger_epochs``: passes over
     the data after the first / each later iteration; ``width`` / ``depth``: the student's
     hidden layers (None: the teacher's sizes)."""
 
@@ -144,10 +139,6 @@ class DistillConfig:
     position: bool = False
     settle: float = 0.0
     retry: float = 0.0
-    law_reach: float | None = None
-    law_lateral: float | None = None
-    law_heading: float | None = None
-    brake_margin: float = 0.0
     width: int | None = None
     depth: int | None = None
     yardstick: int = 200
@@ -171,8 +162,6 @@ class DistillConfig:
         require(0.0 <= self.near_goal <= 1.0, "DistillConfig.near_goal", "in [0, 1]",
                 self.near_goal)
         require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
-        require(0.0 <= self.brake_margin <= 1.0, "DistillConfig.brake_margin", "in [0, 1] m",
-                self.brake_margin)
         for name in ("settle", "retry"):
             value = getattr(self, name)
             require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
@@ -200,20 +189,16 @@ class Teacher:
     episodes ended."""
 
     def __init__(self, path: str, env: TransformedEnv, settle: float = 0.0,
-                 retry: float = 0.0, planner: PlannerConfig | None = None,
-                 brake_margin: float = 0.0) -> None:
+                 retry: float = 0.0, planner: PlannerConfig | None = None) -> None:
         cfg, _ = load_trained(path)
         _, aids = env_configs(cfg, training=False)
         if aids is None or aids.docking is None:
             raise ValueError(f"teacher {path!r} has no docking law to take over from the "
                              f"planner: distil a hybrid agent with one")
-        if brake_margin and aids.brake is None:
-            raise ValueError(f"--brake-margin {brake_margin:g}: teacher {path!r} has no brake")
         self.expert = ExpertConfig(
             planner=planner if planner is not None else PlannerConfig(),
             docking=dataclasses.replace(aids.docking, settle=settle, retry=retry),
-            brake=dataclasses.replace(aids.brake, margin=brake_margin) if brake_margin
-            else aids.brake)
+            brake=aids.brake)
         self.aids = self.expert.aids()
         self.base = env.base_env
         config = self.base.config
@@ -435,30 +420,47 @@ def run_state(out: Path, teacher_path: str, cfg: DistillConfig) -> dict:
     path = out / STATE
     if not path.exists():
         raise ValueError(f"--resume: {path} does not exist (no run to continue in {out})")
-    saved = torch.load(path, map_location="cpu", weights_only=True)
-    ours = {**dataclasses.asdict(cfg), "iterations": None}
-    theirs = {**saved["distill"], "iterations": None}
-    differs = sorted(k for k in ours if ours[k] != theirs.get(k))
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=True)
+        theirs, digest = dict(saved["distill"]), saved["teacher"]
+        done = int(saved["iterations_done"])
+    except Exception as err:  # not a torch file, not plain data, or not this layout
+        raise ValueError(f"--resume: {path} is not a distiller's state "
+                         f"({type(err).__name__})") from None
+    ours = dataclasses.asdict(cfg)
+    differs = sorted(k for k in set(ours) | set(theirs)
+                     if k != "iterations" and ours.get(k) != theirs.get(k))
     if differs:
         key = differs[0]
         raise ValueError(f"--resume: the run in {out} has {key}={theirs.get(key)!r}, this "
-                         f"command {key}={ours[key]!r} (only --iterations may change)")
-    if saved["teacher"] != teacher_digest(teacher_path):
+                         f"command {key}={ours.get(key)!r} (only --iterations may change)")
+    if digest != teacher_digest(teacher_path):
         raise ValueError(f"--resume: the run in {out} was distilled from another teacher "
                          f"than {teacher_path}")
-    done = saved["iterations_done"]
     if cfg.iterations < done:
         raise ValueError(f"--iterations must be >= {done}, the iterations the run in {out} "
                          f"has finished, got {cfg.iterations}")
-    missing = [p for p in map(lambda k: data_path(out, k), range(done)) if not p.exists()]
+    missing = [k for k in range(done) if not data_path(out, k).exists()]
     if missing:
-        raise ValueError(f"--resume: {missing[0]} is missing (the run's labelled data)")
+        raise ValueError(f"--resume: {data_path(out, missing[0])} is missing (the run's "
+                         f"labelled data)")
     return saved
 
 
 def teacher_digest(path: str) -> str:
     """The SHA-256 of the teacher's checkpoint file (a resumed run must have the same)."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def load_data(out: Path, iteration: int, device: torch.device) -> list[torch.Tensor]:
+    """The (inputs, labels, weights) labelled in ``iteration`` of the run in ``out``."""
+    path = data_path(out, iteration)
+    try:
+        inputs, labels, weights = torch.load(path, map_location=device, weights_only=True)
+    except Exception as err:  # not a torch file, not plain data, or not three tensors
+        raise ValueError(f"--resume: {path} is not a distiller's labelled data "
+                         f"({type(err).__name__})") from None
+    return [inputs, labels, weights]
 
 
 def data_path(out: Path, iteration: int) -> Path:
@@ -476,6 +478,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     bit for bit), to ``cfg.iterations``."""
     scfg = student_config(teacher_path, cfg)
     saved = run_state(out, teacher_path, cfg) if resume else None
+    digest = teacher_digest(teacher_path)
     torch.manual_seed(cfg.seed)
     generator = torch.Generator().manual_seed(cfg.seed)
     base = make_base_env(scfg, training=True)
@@ -486,17 +489,12 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     # outside the env to the final-approach states.
     features = Compose(*[t.clone() for t in inputs[:-1]
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
-    funnel = {name: getattr(cfg, name) for name in ("law_reach", "law_lateral", "law_heading")
-              if getattr(cfg, name) is not None}
-    if funnel:
-        planner = dataclasses.replace(planner if planner is not None else PlannerConfig(),
-                                      **funnel)
-    teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, planner, cfg.brake_margin)
+    teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, planner)
     actor, _ = build_models(scfg)
     high = base.action_spec.space.high[0]
     exponents = torch.tensor([cfg.speed_exponent, cfg.steer_exponent], device=base.device)
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
-    data_in, data_out, data_weight, rows = [], [], [], []
+    data, rows = [], []  # (inputs, labels, weights) per iteration
     frames = approach = first = 0
     elapsed = 0.0
     if saved is not None:
@@ -510,12 +508,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
         generator.set_state(saved["generator"])
         torch.set_rng_state(saved["torch_rng"])
         base.restore(saved["env"])
-        for iteration in range(first):
-            x, y, w = torch.load(data_path(out, iteration), map_location=base.device,
-                                 weights_only=True)
-            data_in.append(x)
-            data_out.append(y)
-            data_weight.append(w)
+        data = [load_data(out, k, base.device) for k in range(first)]
         print(f"resumed after iteration {first} of {cfg.iterations} ({frames:,} labelled "
               f"frames)", flush=True)
     parts = [name for name, on in (("gear head", True),
@@ -545,13 +538,10 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
             batches.append((x, power_map_inverse(y, high, exponents),
                             torch.full((x.shape[0],), cfg.approach_weight, device=x.device)))
             approach += x.shape[0]
-        labelled = [torch.cat(column) for column in zip(*batches, strict=True)]
+        data.append([torch.cat(column) for column in zip(*batches, strict=True)])
         data_path(out, iteration).parent.mkdir(exist_ok=True)
-        save_torch(labelled, data_path(out, iteration))
-        data_in.append(labelled[0])
-        data_out.append(labelled[1])
-        data_weight.append(labelled[2])
-        x, y, w = torch.cat(data_in), torch.cat(data_out), torch.cat(data_weight)
+        save_torch(data[-1], data_path(out, iteration))
+        x, y, w = (torch.cat(column) for column in zip(*data, strict=True))
         epochs = cfg.epochs if iteration == 0 else cfg.dagger_epochs
         loss = fit(actor, norm.to_observation_norm(), x, y, w, epochs, cfg, optim, generator)
         row = {"iteration": iteration, "frames": frames, "approach_states": approach,
@@ -573,7 +563,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
             save_torch(checkpoint, out / "checkpoint_best.pt")
         # Last: a run killed before this line resumes from the iteration before, whose
         # files the redone iteration rewrites as they were.
-        save_torch({"distill": dataclasses.asdict(cfg), "teacher": teacher_digest(teacher_path),
+        save_torch({"distill": dataclasses.asdict(cfg), "teacher": digest,
                     "iterations_done": iteration + 1, "frames": frames,
                     "approach_states": approach, "rows": rows, "wall_s": row["wall_s"],
                     "actor": actor.state_dict(), "optim": optim.state_dict(),
