@@ -53,11 +53,15 @@ PATHS = ("step", "step_and_maybe_reset", "rollout", "collector", "reset")
 RESET_SHARES = (0.001, 0.01, 0.1, 1.0)
 
 
+RESET_IN_STEP = {"auto": None, "on": True, "off": False}
+
+
 def make_env(num_envs: int, device: str, mode: str, occupancy: float,
-             validate: bool) -> ParkingEnv:
+             validate: bool, reset_in_step: str = "auto") -> ParkingEnv:
     kwargs = MODES[mode]
     env = ParkingEnv(num_envs, seed=0, device=device, compile_step=kwargs is not None,
-                     compile_kwargs=kwargs, validate_actions=validate)
+                     compile_kwargs=kwargs, validate_actions=validate,
+                     reset_in_step=RESET_IN_STEP[reset_in_step])
     env.occupancy = occupancy
     return env
 
@@ -228,8 +232,8 @@ def measure(num_envs: int, device: str, mode: str, paths: list[str], args
     results: dict[str, dict[str, float]] = {}
     env_paths = [p for p in expand_paths(paths) if p != "collector"]
     try:
-        env = make_env(num_envs, device, mode, args.occupancy,
-                       validate=not args.no_validate) if env_paths else None
+        env = make_env(num_envs, device, mode, args.occupancy, validate=not args.no_validate,
+                       reset_in_step=args.reset_in_step) if env_paths else None
     except Exception as err:
         return {path: {"error": describe(err)} for path in expand_paths(paths)}
     # The first call of each path compiles (tens of seconds on CPU): the bar says where it is.
@@ -293,7 +297,8 @@ def profile(num_envs: int, device: str, args, path: Path) -> None:
     from torch.profiler import ProfilerActivity
     from torch.profiler import profile as torch_profile
 
-    env = make_env(num_envs, device, "compiled", args.occupancy, validate=not args.no_validate)
+    env = make_env(num_envs, device, "compiled", args.occupancy, validate=not args.no_validate,
+                   reset_in_step=args.reset_in_step)
     call = step_and_maybe_reset_call(env, args)
     for _ in range(args.warmup):
         call()
@@ -334,7 +339,9 @@ def tables(n: int, mode: str, results: dict[str, dict[str, float]], reference: f
         row += f" | {cell(results['collector'])}"
     row += " | " + (f"{step['rate'] / reference:,.0f}x |" if "rate" in step else "- |")
     if cuda and "rate" in step:
-        row += f" {step['bytes_per_env'] / 2**20:.4f} | {step['syncs']:.1f} |"
+        smr = results.get("step_and_maybe_reset", {})
+        row += (f" {step['bytes_per_env'] / 2**20:.4f} | {step['syncs']:.2f} / "
+                + (f"{smr['syncs']:.2f} |" if "syncs" in smr else "- |"))
     resets = [p for p in results if p.startswith("reset")]
     reset_row = ""
     if resets:
@@ -362,6 +369,10 @@ def main() -> None:
                              "speed drifts, and noise only ever slows a run down)")
     parser.add_argument("--no-validate", action="store_true",
                         help="validate_actions=False (no host read-back of the action check)")
+    parser.add_argument("--reset-in-step", choices=RESET_IN_STEP, default="auto",
+                        help="ParkingEnv(reset_in_step=...): the reset of ended rows inside "
+                             "the step's graph (on), the host path (off), or the env's "
+                             "default for the device (auto: on for CUDA)")
     parser.add_argument("--profile", type=int, default=None, metavar="N")
     parser.add_argument("--profile-out", type=Path, default=Path("profile.txt"))
     args = parser.parse_args()
@@ -373,7 +384,7 @@ def main() -> None:
           f"{torch.get_num_threads()} threads, device {args.device}"
           + (f" ({torch.cuda.get_device_name()})" if cuda else ""))
     print(f"occupancy {args.occupancy}, 16 rays, {ParkingEnv(1).layout.num_slots + 4} obstacles,"
-          f" validate_actions={not args.no_validate}")
+          f" validate_actions={not args.no_validate}, reset_in_step={args.reset_in_step}")
     refs = reference_steps_per_second(args.occupancy, 2.0, args.repeats)
     reference = max(refs)
     print(f"reference (numpy, one env): {reference:,.0f} steps/s (best of {spread(refs)})")
@@ -382,7 +393,8 @@ def main() -> None:
     head = ("| N | mode | " + " | ".join(
         f"{p} env-steps/s" + ("" if p == "step" else " (/ step)") for p in shown)
         + (" | collector (fast preset) frames/s" if "collector" in args.paths else "")
-        + " | step / reference |" + (" MB per env | host syncs per step |" if cuda else ""))
+        + " | step / reference |"
+        + (" MB per env | host syncs per step / per step_and_maybe_reset |" if cuda else ""))
     head = head + "\n" + "|---" * head.count(" | ") + "|---|"
     reset_head = ("| N | mode | step ms | " + " | ".join(
         f"reset {100 * s:g} % ms (/ step)" for s in RESET_SHARES) + " |\n"

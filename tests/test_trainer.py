@@ -26,6 +26,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchpark import (
     DockingConfig,
     ParkingConfig,
+    ParkingEnv,
 )
 from torchpark.files import locked
 from torchpark.transforms.features import GOAL_FEATURES
@@ -202,6 +203,35 @@ def test_a_start_checkpoint_with_another_agent_or_a_resume_beside_it_is_refused(
         train(cfg, resume=str(final), init=str(final))
     with pytest.raises(ValueError, match="is not a torchpark checkpoint"):
         train(cfg, init=__file__)
+
+
+def test_the_gpu_preset_is_fast_at_a_gpu_size_and_reads_its_env_once_per_batch(monkeypatch):
+    """``gpu`` differs from ``fast`` in the env's size and device, the batch, the minibatch and
+    the compile switches only, so its agent is fast's; its env, resetting inside its step,
+    holds one block of new episodes per step of a batch (the host reads it once a batch)."""
+    import trainers.utils
+
+    def leaves(cfg: TrainConfig) -> dict:
+        flat = {}
+
+        def walk(node: object, name: str) -> None:
+            if isinstance(node, dict):
+                for key, value in node.items():
+                    walk(value, f"{name}.{key}".lstrip("."))
+            else:
+                flat[name] = node
+        walk(dataclasses.asdict(cfg), "")
+        return flat
+
+    gpu = load_config("gpu", [] if torch.cuda.is_available() else ["env.device=cpu"])
+    fast, ours = leaves(load_config("fast")), leaves(gpu)
+    differs = {key for key in fast if fast[key] != ours[key]}
+    assert differs <= {"env.num_envs", "env.device", "collector.frames_per_batch",
+                       "loss.mini_batch_size", "optim.compile_update", "logger.exp_name"}
+    assert {"env.num_envs", "collector.frames_per_batch", "optim.compile_update"} <= differs
+    monkeypatch.setattr(trainers.utils, "ParkingEnv", partial(ParkingEnv, reset_in_step=True))
+    env = trainers.utils.make_base_env(gpu, training=False, num_envs=4)
+    assert env._blocks == 8 + 1  # 8 env steps per batch
 
 
 def test_unknown_preset_or_field_is_an_error():

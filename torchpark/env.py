@@ -9,7 +9,15 @@ state and the aids' beside it, inert when they are off. Pictures come from
 A reset costs what it resets: the env draws N new episodes at a time (lots, start poses,
 first observations: one batched, compiled call) and hands them out in order, each once, to
 the rows that reset, writing those rows in place. The other rows are not touched, so a reset
-of B rows costs a gather and a scatter of B rows, plus 1/N of a batch draw per row.
+of B rows costs a gather and a scatter of B rows, plus 1/N of a batch draw per row. It reads
+the rows' count back (on CUDA a synchronisation, beside torchrl's ``done.any()``).
+
+With ``reset_in_step`` (the default on CUDA) the reset of the rows a step ends happens in the
+step's own graph instead (:mod:`torchpark.sim.ring`): episodes drawn ahead in a ring of blocks
+of N, handed out by device counters that the host reads once every ``blocks_ahead`` steps. The
+rows get the same episodes in the same order, with no data-dependent shape and no read-back
+per step; each step writes every row (a select over the whole state), which costs more than
+the host path's scatter of the reset rows on a CPU, where a read-back costs nothing.
 """
 
 from __future__ import annotations
@@ -51,6 +59,7 @@ from torchpark.config import (
 from torchpark.sim.episodes import draw_lots
 from torchpark.sim.layout import build_layout
 from torchpark.sim.observation import observation_dim, observe
+from torchpark.sim.ring import Counters, reset_rows, step_and_reset
 from torchpark.sim.step import ParkingState, put_rows_, take_rows
 from torchpark.sim.world import World, build_world
 
@@ -97,6 +106,19 @@ def check_device(device: object, name: str = "device") -> None:
                          f"device(s) here")
 
 
+def output_fields(state: AidedState, observation: torch.Tensor, cost: torch.Tensor,
+                  aid_keys: tuple[str, ...], position: bool) -> dict[str, torch.Tensor]:
+    """The outputs read from a state (views, not copies): observation (N, D), cost (N, 1) and
+    occupancy (N, 1) float32, the aids' keys ``aid_keys`` (N, 1), and with ``position`` the
+    rear axle's position (N, 2) metres."""
+    fields = {"observation": observation, "cost": cost[:, None],
+              "occupancy": state.sim.occupancy[:, None],
+              **{key: getattr(state.aids, key)[:, None] for key in aid_keys}}
+    if position:
+        fields["position"] = state.sim.pose[:, :2]
+    return fields
+
+
 def _first_difference(saved: object, ours: object, default: object = None, name: str = ""
                       ) -> str | None:
     """Where two nested dicts of plain data first differ, as ``"name=<saved> in the
@@ -134,7 +156,18 @@ class ParkingEnv(EnvBase):
         compile_kwargs: passed to ``torch.compile``.
         validate_actions: raise on non-finite actions (the state is then left as it was). The
             test runs inside the step; reading its bool is free on CPU, a synchronisation on
-            CUDA: turn it off for GPU throughput.
+            CUDA. With ``reset_in_step``, ``step_and_maybe_reset`` reads it with the counters
+            instead, once every ``blocks_ahead`` steps: a row given a non-finite action
+            takes (0, 0) (it stands still) and the ValueError comes at that read.
+        reset_in_step: ``step_and_maybe_reset`` (rollouts, collectors) resets the rows a step
+            ends inside the step's function, one graph from action to the next observation,
+            with no host read-back per step (:mod:`torchpark.sim.ring`). None (default): on
+            CUDA, where it removes a synchronisation per step; the CPU's host path is faster.
+            Either gives the same rollout for the same seed, as long as nothing else draws
+            from the env's generator in between (``randomize_step_counts``): this path draws
+            its episodes up to ``blocks_ahead`` blocks earlier.
+        blocks_ahead: with ``reset_in_step``, the steps between two host reads, >= 1; the env
+            holds ``blocks_ahead + 1`` blocks of N new episodes (about 330 bytes each).
 
     Actions (N, 2) = (v m/s, delta rad) are clamped to [-max_speed, max_speed] and
     [-max_steer, max_steer] (documented behaviour); a non-finite action raises ValueError.
@@ -167,6 +200,8 @@ class ParkingEnv(EnvBase):
         compile_step: bool = False,
         compile_kwargs: dict | None = None,
         validate_actions: bool = True,
+        reset_in_step: bool | None = None,
+        blocks_ahead: int = 8,
     ) -> None:
         if not is_integer(num_envs) or num_envs < 1:
             raise ValueError(f"num_envs must be an int >= 1, got {num_envs!r}")
@@ -180,6 +215,10 @@ class ParkingEnv(EnvBase):
         if aids is not None and not isinstance(aids, AidsConfig):
             raise TypeError(f"aids must be an AidsConfig or None, got {type(aids).__name__}")
         check_device(device)
+        reset_in_step = (torch.device(device).type == "cuda" if reset_in_step is None
+                         else check_flag(reset_in_step, "reset_in_step"))
+        if not is_integer(blocks_ahead) or blocks_ahead < 1:
+            raise ValueError(f"blocks_ahead must be an int >= 1, got {blocks_ahead!r}")
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self.num_envs = num_envs
         self.config = cfg = config if config is not None else ParkingConfig()
@@ -206,24 +245,41 @@ class ParkingEnv(EnvBase):
                           RuntimeWarning, stacklevel=2)
             compile_step = False
         self.compiled = compile_step  # whether the step and the reset's draw are compiled
-        if compile_step:
-            _allow_recompiles()
-            kwargs = {"fullgraph": True, **(compile_kwargs or {})}
-            step, reset = (torch.compile(f, **kwargs) for f in (step, reset))
-        self._step_fn = step
-        # The reset's work: N new episodes at a time (lots, start poses, first observations),
-        # drawn ahead and handed out in order, each once, to the rows that reset.
-        self._new_episodes = reset
         # The aids' output keys this env emits.
         self._aid_keys = ((BRAKE_KEYS if agent.brake is not None else ())
                           + (DOCKING_KEYS if agent.docking is not None else ()))
+        self._fields = partial(output_fields, aid_keys=self._aid_keys,
+                               position=agent.observe_position)
+        functions = [step, reset, partial(step_and_reset, step, self._fields),
+                     partial(reset_rows)]
+        if compile_step:
+            _allow_recompiles()
+            kwargs = {"fullgraph": True, **(compile_kwargs or {})}
+            functions = [torch.compile(f, **kwargs) for f in functions]
+        # The step; the reset's work: N new episodes at a time (lots, start poses, first
+        # observations), drawn ahead and handed out in order, each once, to the rows that
+        # reset; with reset_in_step, the step and that reset as one function, and the reset
+        # of a mask's rows from the ring.
+        self._step_fn, self._new_episodes, self._step_reset_fn, self._reset_fn = functions
+        self.reset_in_step = reset_in_step
         self._make_specs()
+        self._state, self._observation, self._cost = self._zeros()
+        # The host path's episodes drawn ahead (a state of N rows, observations, costs);
+        # the first `_ahead_used` of them are handed out.
+        self._ahead, self._ahead_used = self._zeros(), num_envs
+        # reset_in_step's ring of `_blocks` blocks of N episodes and its device counters:
+        # block 0 stands for no block (all used); the host has drawn blocks [0, _drawn),
+        # last read block `_known` and let `_unread` hand-outs run since.
+        self._blocks = blocks_ahead + 1 if reset_in_step else 0
+        self._ring = self._zeros(self._blocks * num_envs) if reset_in_step else None
+        self._counters = Counters(torch.tensor(0, device=self.device),
+                                  torch.tensor(num_envs, device=self.device))
+        self._bad_action = torch.tensor(False, device=self.device)  # read with the counters
+        self._drawn, self._known, self._unread = 1, 0, 0
+        self._after_reset: TensorDictBase | None = None  # what the last step's reset returns
+        self._resetting = False  # _step is called from _step_and_reset
         self._generator = torch.Generator(device=self.device)
         self._set_seed(seed)
-        self._state, self._observation, self._cost = self._zeros()
-        # Episodes drawn ahead (a state of N rows, observations, costs); the first
-        # `_ahead_used` of them are handed out.
-        self._ahead, self._ahead_used = self._zeros(), num_envs
         self._started = False  # no lot drawn yet: reset() first
         self._renderer = None  # a media.rendering.LotRenderer, made on the first picture
 
@@ -244,7 +300,7 @@ class ParkingEnv(EnvBase):
     def occupancy(self, value: float) -> None:
         value = check_occupancy(value, "occupancy")
         if value != self._occupancy:
-            self._ahead_used = self.num_envs  # lots drawn ahead at another occupancy: unused
+            self._discard_ahead()  # lots drawn ahead at another occupancy: unused
         self._occupancy = value
 
     @property
@@ -263,7 +319,7 @@ class ParkingEnv(EnvBase):
         near-goal starts, which are drawn clear of the success test, the episodes drawn ahead
         are discarded."""
         if self._agent.near_goal_starts is not None:
-            self._ahead_used = self.num_envs
+            self._discard_ahead()
         if isinstance(value, torch.Tensor):
             if value.dim() != 0 or not value.is_floating_point():
                 raise ValueError(f"success_threshold must be a 0-d float tensor, got shape "
@@ -314,7 +370,37 @@ class ParkingEnv(EnvBase):
             seed = int(torch.randint(0, SEED_LIMIT, (), dtype=torch.int64))
         seed = check_seed(seed, "seed")
         self._generator.manual_seed(seed)
-        self._ahead_used = self.num_envs  # later lots come from the new seed
+        self._discard_ahead()  # later lots come from the new seed
+
+    def _discard_ahead(self) -> None:
+        """Hand out none of the episodes drawn so far: later resets draw new ones (from the
+        generator, at the occupancy, against the success threshold of that time). With
+        reset_in_step, one read of the counters."""
+        self._ahead_used = self.num_envs
+        if self.reset_in_step:
+            block = int(self._counters.block)
+            self._counters.used.fill_(self.num_envs)
+            self._drawn, self._known, self._unread = block + 1, block, 0
+
+    def _ring_ready(self) -> None:
+        """Before a hand-out from the ring: make sure the block it may move to is drawn.
+        Where the host can no longer tell, it reads the counters (and the non-finite action
+        flag) back, once, and draws the blocks spent since, in order."""
+        if self._known + self._unread + 2 <= self._drawn:
+            return
+        block, bad = torch.stack((self._counters.block, self._bad_action.long())).tolist()
+        if bad and self.validate_actions:
+            self._bad_action.fill_(False)
+            raise ValueError(f"action must be finite (no NaN or inf); a non-finite value "
+                             f"reached step_and_maybe_reset within the last "
+                             f"{self._blocks - 1} steps (its rows stood still)")
+        self._known, self._unread = block, 0
+        n = self.num_envs
+        while self._drawn < block + self._blocks:
+            start = (self._drawn % self._blocks) * n
+            put_rows_(self._ring, torch.arange(start, start + n, device=self.device),
+                      self._draw_episodes())
+            self._drawn += 1
 
     @property
     def world(self) -> World:
@@ -406,9 +492,10 @@ class ParkingEnv(EnvBase):
             if not fine:
                 raise ValueError(f"{name}.{field} must be {allowed} in every row")
 
-    def _zeros(self) -> tuple[AidedState, torch.Tensor, torch.Tensor]:
-        """A state holding no lot, with its observation and cost: zeros."""
-        n, m = self.num_envs, self._world.obstacles.cx.shape[0]
+    def _zeros(self, rows: int | None = None) -> tuple[AidedState, torch.Tensor, torch.Tensor]:
+        """A state of ``rows`` rows (default N) holding no lot, with its observation and
+        cost: zeros."""
+        n, m = rows or self.num_envs, self._world.obstacles.cx.shape[0]
         return (AidedState(ParkingState.zeros(n, m, self.device), AidState.zeros(n, self.device)),
                 torch.zeros(n, self.obs_dim, device=self.device),
                 torch.zeros(n, device=self.device))
@@ -437,17 +524,23 @@ class ParkingEnv(EnvBase):
         """How the env was built (what its state's meaning depends on), as plain data: the
         number of lots, the task's config and the aids'."""
         return {"num_envs": self.num_envs, "config": dataclasses.asdict(self.config),
-                "aids": dataclasses.asdict(self._agent)}
+                "aids": dataclasses.asdict(self._agent), "reset_in_step": self.reset_in_step,
+                "ring_blocks": self._blocks}
 
     def snapshot(self) -> dict[str, torch.Tensor | float | bool | int | dict]:
         """Everything the env's future depends on, as plain tensors and numbers (safe for
         ``torch.save`` and ``torch.load(weights_only=True)``): every lot's state (and the
         aids'), the last observation and cost, the episodes drawn ahead and how many of them
-        are handed out, the random generator, the occupancy of later lots, the success
-        threshold, and how the env was built (``build``: its size and configs, so that an env
+        are handed out (with ``reset_in_step``, the ring, its counters and the blocks
+        drawn), the random generator, the occupancy of later lots, the success threshold, and
+        how the env was built (``build``: its size, configs and reset path, so that an env
         built otherwise refuses it). :meth:`restore` continues exactly from it."""
-        return {**self._flat(self._state, self._observation, self._cost),
-                **self._flat(*self._ahead, prefix="ahead."), "ahead_used": self._ahead_used,
+        if self.reset_in_step:
+            ahead = {**self._flat(*self._ring, prefix="ring."), "ring_drawn": self._drawn,
+                     "ring_counters": torch.stack((*self._counters, self._bad_action.long()))}
+        else:
+            ahead = {**self._flat(*self._ahead, prefix="ahead."), "ahead_used": self._ahead_used}
+        return {**self._flat(self._state, self._observation, self._cost), **ahead,
                 "generator": self._generator.get_state(), "occupancy": self._occupancy,
                 "success_threshold": self._world.success_threshold.clone(),
                 "started": self._started, "build": self._build()}
@@ -461,15 +554,17 @@ class ParkingEnv(EnvBase):
             raise TypeError(f"snapshot must be a dict from ParkingEnv.snapshot, got "
                             f"{type(snapshot).__name__}")
         expected = self.snapshot()
+        # Snapshots from before the reset path was a choice are of the host path.
+        defaults = {"config": dataclasses.asdict(ParkingConfig()),
+                    "aids": dataclasses.asdict(AidsConfig()), "reset_in_step": False,
+                    "ring_blocks": 0}
+        differs = _first_difference(snapshot.get("build"), expected["build"], defaults)
+        if differs is not None:
+            raise ValueError(f"snapshot['build'] is of an env built otherwise: {differs}")
         missing = sorted(set(expected) - set(snapshot))
         if missing or set(snapshot) - set(expected):
             raise ValueError(f"snapshot must hold exactly {sorted(expected)}; missing "
                              f"{missing}, extra {sorted(set(snapshot) - set(expected))}")
-        defaults = {"config": dataclasses.asdict(ParkingConfig()),
-                    "aids": dataclasses.asdict(AidsConfig())}
-        differs = _first_difference(snapshot["build"], expected["build"], defaults)
-        if differs is not None:
-            raise ValueError(f"snapshot['build'] is of an env built otherwise: {differs}")
         for key, ours in expected.items():
             theirs = snapshot[key]
             if isinstance(ours, torch.Tensor) and (
@@ -477,10 +572,20 @@ class ParkingEnv(EnvBase):
                     or theirs.dtype != ours.dtype):
                 raise ValueError(f"snapshot[{key!r}] must be a {ours.dtype} tensor of shape "
                                  f"{tuple(ours.shape)}, got {theirs!r}")
-        used = snapshot["ahead_used"]
-        if not is_integer(used) or not 0 <= used <= self.num_envs:
-            raise ValueError(f"snapshot['ahead_used'] must be an int in [0, {self.num_envs}], "
-                             f"got {used!r}")
+        if self.reset_in_step:
+            block, used, bad = snapshot["ring_counters"].tolist()
+            drawn = snapshot["ring_drawn"]
+            if not (is_integer(drawn) and 0 <= block < drawn <= block + self._blocks
+                    and 0 <= used <= self.num_envs and bad in (0, 1)):
+                raise ValueError(f"snapshot['ring_counters'] (block, used, bad action) and "
+                                 f"['ring_drawn'] must satisfy 0 <= block < drawn <= block + "
+                                 f"{self._blocks}, used in [0, {self.num_envs}], bad 0 or 1; "
+                                 f"got {(block, used, bad)}, {drawn!r}")
+        else:
+            used = snapshot["ahead_used"]
+            if not is_integer(used) or not 0 <= used <= self.num_envs:
+                raise ValueError(f"snapshot['ahead_used'] must be an int in "
+                                 f"[0, {self.num_envs}], got {used!r}")
         occupancy = check_occupancy(snapshot["occupancy"], "snapshot['occupancy']")
         started = check_flag(snapshot["started"], "snapshot['started']")
         threshold = snapshot["success_threshold"]
@@ -492,8 +597,9 @@ class ParkingEnv(EnvBase):
         except RuntimeError as err:
             raise ValueError(f"snapshot['generator'] is not a state of this device's random "
                              f"generator: {str(err).splitlines()[0]}") from None
-        current, ahead = self._unflat(snapshot), self._unflat(snapshot, "ahead.")
-        for (state, observation, cost), prefix in ((current, ""), (ahead, "ahead.")):
+        pool = "ring." if self.reset_in_step else "ahead."
+        current, ahead = self._unflat(snapshot), self._unflat(snapshot, pool)
+        for (state, observation, cost), prefix in ((current, ""), (ahead, pool)):
             self._check_state(state, f"snapshot['{prefix}state']")
             if not bool(torch.isfinite(observation).all() & torch.isfinite(cost).all()):
                 raise ValueError(f"snapshot['{prefix}observation'] and ['{prefix}cost'] must "
@@ -504,7 +610,13 @@ class ParkingEnv(EnvBase):
         self.occupancy = occupancy
         self.set_success_threshold(threshold.to(self.device))
         self._started = started
-        self._ahead, self._ahead_used = ahead, int(used)
+        if self.reset_in_step:
+            self._ring = ahead
+            counters = snapshot["ring_counters"].to(self.device, copy=True)
+            self._counters, self._bad_action = Counters(counters[0], counters[1]), counters[2] > 0
+            self._drawn, self._known, self._unread = int(drawn), int(block), 0
+        else:
+            self._ahead, self._ahead_used = ahead, int(used)
 
     def randomize_step_counts(self) -> None:
         """Set every env's step count to a uniform draw in [0, max_steps), from the env's
@@ -560,15 +672,9 @@ class ParkingEnv(EnvBase):
     # ------------------------------------------------------------------ EnvBase hooks
     def _outputs(self, **fields: torch.Tensor) -> TensorDictBase:
         # Copies: a later reset writes the env's tensors in place.
-        aid_outputs = {key: getattr(self._aids, key)[:, None].clone() for key in self._aid_keys}
-        if self._agent.observe_position:
-            aid_outputs["position"] = self._sim.pose[:, :2].clone()
-        return TensorDict(
-            {**fields, "observation": self._observation.clone(),  # the caller's, not our buffer
-             "cost": self._cost[:, None].clone(), "occupancy": self._sim.occupancy[:, None].clone(),
-             **aid_outputs},
-            batch_size=self.batch_size, device=self.device,
-        )
+        state = self._fields(self._state, self._observation, self._cost)
+        return TensorDict({**fields, **{k: v.clone() for k, v in state.items()}},
+                          batch_size=self.batch_size, device=self.device)
 
     def _reset_output(self) -> TensorDictBase:
         no = torch.zeros(self.num_envs, 1, dtype=torch.bool, device=self.device)
@@ -577,6 +683,18 @@ class ParkingEnv(EnvBase):
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         n = self.num_envs
+        if self.reset_in_step:  # from the ring: a select of every row, nothing read back
+            if tensordict is not None and "_reset" in tensordict.keys() and self._started:
+                mask = tensordict.get("_reset").reshape(n).to(self.device, torch.bool)
+            else:  # the first reset draws every row, whatever the mask
+                mask = torch.ones(n, dtype=torch.bool, device=self.device)
+            self._ring_ready()
+            rows, self._counters = self._reset_fn(
+                mask, (self._state, self._observation, self._cost), self._ring, self._counters)
+            self._state, self._observation, self._cost = rows
+            self._unread += 1
+            self._started = True
+            return self._reset_output()
         if tensordict is not None and "_reset" in tensordict.keys() and self._started:
             # The rows to reset: the reset's one read-back (their count; on CUDA a sync,
             # beside the one torchrl makes for done.any()).
@@ -606,6 +724,8 @@ class ParkingEnv(EnvBase):
             return super()._step_and_maybe_reset(tensordict)
         if tensordict.device != self.device:
             tensordict = tensordict.to(self.device)
+        if self.reset_in_step:
+            return self._step_and_reset(tensordict)
         tensordict = self.step(tensordict)
         tensordict_ = self._step_mdp(tensordict)
         done = tensordict.get(("next", "done"))
@@ -620,16 +740,39 @@ class ParkingEnv(EnvBase):
                 tensordict_.update(others.masked_fill(done.reshape(self.batch_size), 0))
         return tensordict, tensordict_
 
+    def _step_and_reset(self, tensordict: TensorDictBase
+                        ) -> tuple[TensorDictBase, TensorDictBase]:
+        """:meth:`_step_and_maybe_reset` with ``reset_in_step``: torchrl's step, whose
+        :meth:`_step` runs the step and the reset of its ended rows as one function and keeps
+        what the reset returns; then the same merge as the host path, with the padding of the
+        other keys as a mask on the device (done rows, unless every row is done)."""
+        self._resetting = True
+        try:
+            tensordict = self.step(tensordict)
+        finally:
+            self._resetting = False
+        tensordict_ = self._step_mdp(tensordict)
+        done = tensordict.get(("next", "done")).reshape(self.batch_size)
+        after, self._after_reset = self._after_reset, None
+        others = tensordict_.exclude(*after.keys())
+        tensordict_.update(after)
+        if not others.is_empty():  # torchrl pads partial resets only
+            tensordict_.update(others.masked_fill(done & ~done.all(), 0))
+        return tensordict, tensordict_
+
     def _draw_episodes_ahead(self) -> None:
-        """Draw N new episodes (lots at the current occupancy, start poses, their first
-        observations) from the env's generator, in one batch, replacing those not handed
-        out yet."""
+        """Replace the host path's episodes not handed out yet by N new ones."""
+        self._ahead, self._ahead_used = self._draw_episodes(), 0
+
+    def _draw_episodes(self) -> tuple[AidedState, torch.Tensor, torch.Tensor]:
+        """N new episodes (lots at the current occupancy, start poses, their first
+        observations) drawn from the env's generator in one batch."""
         n = self.num_envs
         lots = draw_lots(n, self._occupancy, self.layout, self.config.lot, self._generator)
         near = self._agent.near_goal_starts
         near_draw = None if near is None else draw_near(self._world.goal_poses[lots.goal_slot],
                                                         near, self._generator)
-        self._ahead, self._ahead_used = self._new_episodes(lots, near_draw), 0
+        return self._new_episodes(lots, near_draw)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         if not self._started:
@@ -651,6 +794,15 @@ class ParkingEnv(EnvBase):
             raise ValueError(f"action must be float32 (or float64, rounded to float32), got "
                              f"{action.dtype}")
         action = action.detach().to(torch.float32)
+        if self._resetting:  # from _step_and_reset: the step and its reset, one function
+            self._ring_ready()
+            rows, reached, after, self._counters, self._bad_action = self._step_reset_fn(
+                self._state, action, self._ring, self._counters, self._bad_action)
+            self._unread += 1
+            self._state, self._observation, self._cost = rows
+            self._after_reset = TensorDict(after, batch_size=self.batch_size,
+                                           device=self.device)
+            return TensorDict(reached, batch_size=self.batch_size, device=self.device)
         state, out, finite = self._step_fn(self._state, action)
         if self.validate_actions and not bool(finite):  # before the state is kept
             raise ValueError("action must be finite (no NaN or inf); got a non-finite value")

@@ -180,6 +180,21 @@ def _fast() -> TrainConfig:
     )
 
 
+def _gpu() -> TrainConfig:
+    """``fast`` for one CUDA GPU: 16,384 envs stepping and resetting in one compiled graph
+    (``reset_in_step``, the host reading back once per batch), 8 actions per env per batch,
+    minibatches of 8,192, the policy and the PPO update compiled and Adam fused. The same
+    agent, reward, success test and curriculum as ``fast``. Not yet run on a GPU (issue 44):
+    its figures and evaluation are to be measured."""
+    cfg = _fast()
+    return replace(cfg, env=EnvConfig(num_envs=16_384, device="cuda", compile_step=True),
+                   collector=CollectorConfig(frames_per_batch=16_384 * 8 * 5,
+                                             compile_policy=True),
+                   loss=replace(cfg.loss, mini_batch_size=8_192),
+                   optim=OptimConfig(compile_update=True),
+                   logger=LoggerConfig(exp_name="gpu"))
+
+
 def _smoke() -> TrainConfig:
     """A few thousand frames, under a minute: for tests and CI."""
     return TrainConfig(
@@ -193,7 +208,7 @@ def _smoke() -> TrainConfig:
 
 # The paper's own recipe runs on the paper's own tool chain (trainers.sb3_paper, which made
 # results/paper/), not as a preset here: one way to run it.
-PRESETS = {"fast": _fast, "smoke": _smoke}
+PRESETS = {"fast": _fast, "gpu": _gpu, "smoke": _smoke}
 
 
 def load_config(preset: str, overrides: list[str] | None = None) -> TrainConfig:

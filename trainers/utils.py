@@ -124,11 +124,15 @@ def reset_exploration(actor: ProbabilisticActor, cfg: ModelConfig) -> None:
 
 def make_base_env(cfg: TrainConfig, training: bool, num_envs: int | None = None,
                   seed: int | None = None) -> ParkingEnv:
-    """The run's ParkingEnv: its task and aids from :func:`trainers.config.env_configs`."""
+    """The run's ParkingEnv: its task and aids from :func:`trainers.config.env_configs`.
+    Where it resets inside its step (CUDA), the host reads it back once per collector batch:
+    ``blocks_ahead`` is the batch's env steps."""
     config, aids = env_configs(cfg, training)
+    steps = cfg.collector.frames_per_batch // (cfg.env.num_envs * cfg.agent.aids.action_repeat)
     return ParkingEnv(cfg.env.num_envs if num_envs is None else num_envs,
                       device=cfg.env.device, seed=cfg.seed if seed is None else seed,
-                      config=config, aids=aids, compile_step=cfg.env.compile_step and training)
+                      config=config, aids=aids, compile_step=cfg.env.compile_step and training,
+                      blocks_ahead=max(1, steps))
 
 
 def make_env(cfg: TrainConfig, num_envs: int | None = None, seed: int | None = None,

@@ -75,13 +75,12 @@ class StepResult(NamedTuple):
 
 
 def mux_rows(mask: Tensor, new: tuple, old: tuple) -> tuple:
-    """Field by field, ``new`` where ``mask`` (N,) is set, else ``old``: NamedTuples (nested
-    ones too) of [N, ...] tensors."""
-    return type(old)(*(
-        mux_rows(mask, a, b) if isinstance(b, tuple)
-        else torch.where(mask.view(-1, *([1] * (a.dim() - 1))), a, b)
-        for a, b in zip(new, old, strict=True)
-    ))
+    """Field by field, ``new`` where ``mask`` (N,) is set, else ``old``: tuples and
+    NamedTuples (nested ones too) of [N, ...] tensors."""
+    muxed = (mux_rows(mask, a, b) if isinstance(b, tuple)
+             else torch.where(mask.view(-1, *([1] * (a.dim() - 1))), a, b)
+             for a, b in zip(new, old, strict=True))
+    return type(old)(*muxed) if hasattr(old, "_fields") else tuple(muxed)
 
 
 def move(pose: Tensor, v: Tensor, delta: Tensor, present: Tensor, world: World,

@@ -1,0 +1,54 @@
+"""What only a GPU can show (``python -m pytest --device cuda``; skipped on a CPU): the
+collector's path makes no host synchronisation between the host's reads of the ring, and
+the step-and-reset graph replayed as a CUDA graph gives the compiled graph's rollout."""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+import torch
+
+from tests.conftest import random_actions
+from tests.test_ring import BUSY, assert_same_rollout, rollout
+from torchpark import ParkingEnv
+
+
+@pytest.fixture
+def cuda(device: torch.device) -> torch.device:
+    if device.type != "cuda":
+        pytest.skip("a CUDA test: run with --device cuda")
+    return device
+
+
+def test_step_and_maybe_reset_syncs_only_when_the_host_reads_the_ring(cuda):
+    env = ParkingEnv(1024, seed=0, device=cuda, config=BUSY, compile_step=True,
+                     blocks_ahead=8)
+    assert env.reset_in_step  # the default on CUDA
+    td = env.reset()
+    actions = random_actions(1024, 48, 0).to(cuda)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        torch.cuda.set_sync_debug_mode("warn")
+        try:
+            for action in actions:
+                td = env.step_and_maybe_reset(td.set("action", action))[1]
+        finally:
+            torch.cuda.set_sync_debug_mode("default")
+    syncs = sum("synchroniz" in str(w.message) for w in caught)
+    assert syncs <= 48 // 8 + 1
+
+
+def test_the_captured_path_gives_the_compiled_paths_rollout(cuda):
+    """mode="reduce-overhead" (a CUDA graph replayed per step) against the same graph
+    launched kernel by kernel: the same kernels, the same rollout bit for bit."""
+    compiled = ParkingEnv(512, seed=1, device=cuda, config=BUSY, compile_step=True)
+    captured = ParkingEnv(512, seed=1, device=cuda, config=BUSY, compile_step=True,
+                          compile_kwargs={"mode": "reduce-overhead"})
+    assert_same_rollout(rollout(captured, 60, seed=2), rollout(compiled, 60, seed=2))
+
+
+def test_the_one_graph_path_on_cuda_gives_the_host_paths_rollout(cuda):
+    host = ParkingEnv(256, seed=4, device=cuda, config=BUSY, reset_in_step=False)
+    ring = ParkingEnv(256, seed=4, device=cuda, config=BUSY, reset_in_step=True)
+    assert_same_rollout(rollout(ring, 50, seed=3), rollout(host, 50, seed=3))

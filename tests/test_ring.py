@@ -1,0 +1,235 @@
+"""The reset inside the step's graph (``reset_in_step``, :mod:`torchpark.sim.ring`): its
+hand-out against a plain reference of the host path's, whole rollouts equal to the host
+path's, one compiled graph with no data-dependent shape, one host read per ``blocks_ahead``
+steps, the deferred action check, snapshots, and the discards of episodes drawn ahead."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torch.utils._python_dispatch import TorchDispatchMode
+from torchrl.envs.utils import check_env_specs
+
+from tests.conftest import random_actions
+from torchpark import (
+    AidsConfig,
+    BrakeConfig,
+    DockingConfig,
+    NearGoalStarts,
+    ParkingConfig,
+    ParkingEnv,
+)
+from torchpark.env import compiler_found
+from torchpark.sim.ring import Counters, hand_out
+
+# Short episodes in a full lot: rows end every few steps, blocks are spent every few steps.
+BUSY = ParkingConfig(max_steps=7, occupancy=0.9)
+AIDED = AidsConfig(action_repeat=2, brake=BrakeConfig(), docking=DockingConfig(),
+                   near_goal_starts=NearGoalStarts())
+
+
+def reference_hand_out(masks: list[list[bool]]) -> list[list[tuple[int, int]]]:
+    """The host path's order, one row at a time: (block, row of the block) for every ended
+    row of every mask, blocks of N from block 1 on, a block's rest skipped when it does not
+    hold every ended row."""
+    n, block, used, given = len(masks[0]), 0, len(masks[0]), []
+    for mask in masks:
+        count = sum(mask)
+        if count > n - used:
+            block, used = block + 1, 0
+        given.append([(block, used + k) for k in range(count)])
+        used += count
+    return given
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_hand_out_follows_the_host_paths_order(seed):
+    gen = torch.Generator().manual_seed(seed)
+    n, blocks = 1 + seed, 3
+    share = torch.rand(60, generator=gen)  # from almost no row to every row per step
+    masks = torch.rand(60, n, generator=gen) < share[:, None]
+    counters = Counters(torch.tensor(0), torch.tensor(n))
+    for mask, expected in zip(masks, reference_hand_out(masks.tolist()), strict=True):
+        index, counters = hand_out(mask, counters, blocks)
+        assert [divmod(int(i), n) for i in index[mask]] == [
+            (block % blocks, row) for block, row in expected]
+        assert ((index >= 0) & (index < blocks * n)).all()
+
+
+def rollout(env: ParkingEnv, steps: int, seed: int) -> list[tuple[TensorDict, TensorDict]]:
+    """``steps`` of ``step_and_maybe_reset`` with random actions: (td, td_) of each."""
+    td, pairs = env.reset(), []
+    for action in random_actions(env.num_envs, steps, seed).to(env.device):
+        td, td_ = env.step_and_maybe_reset(td.set("action", action))
+        pairs.append((td.clone(), td_.clone()))
+        td = td_
+    return pairs
+
+
+def assert_same_rollout(ours: list, theirs: list) -> None:
+    for step, ((a, a_), (b, b_)) in enumerate(zip(ours, theirs, strict=True)):
+        for x, y in ((a, b), (a_, b_)):
+            assert set(x.keys(True, True)) == set(y.keys(True, True)), step
+            for key in x.keys(True, True):
+                assert torch.equal(x[key], y[key]), (step, key)
+
+
+@pytest.mark.parametrize("aids", [None, AIDED], ids=["paper", "aided"])
+@pytest.mark.parametrize("blocks_ahead", [1, 4])
+def test_the_rollout_is_the_host_paths(aids, blocks_ahead):
+    """Every key of td and td_ (ended rows' last observations, the new episodes, the padded
+    action) at every step, bit for bit, through many ends and blocks."""
+    host = ParkingEnv(48, seed=3, config=BUSY, aids=aids, reset_in_step=False)
+    ring = ParkingEnv(48, seed=3, config=BUSY, aids=aids, reset_in_step=True,
+                      blocks_ahead=blocks_ahead)
+    theirs, ours = rollout(host, 60, seed=1), rollout(ring, 60, seed=1)
+    assert sum(int(td["next", "done"].sum()) for td, _ in theirs) > 6 * 48  # many ends
+    assert int(ring._counters.block) > 2 * ring._blocks  # the ring went round
+    assert_same_rollout(ours, theirs)
+
+
+def test_a_partial_reset_is_the_host_paths():
+    host = ParkingEnv(32, seed=8, config=BUSY, reset_in_step=False)
+    ring = ParkingEnv(32, seed=8, config=BUSY, reset_in_step=True, blocks_ahead=2)
+    gen = torch.Generator().manual_seed(0)
+    for env in (host, ring):
+        env.reset()
+    for _ in range(12):
+        mask = torch.rand(32, 1, generator=gen) < 0.4
+        a, b = (env.reset(TensorDict({"_reset": mask}, batch_size=[32])) for env in (host, ring))
+        for key in a.keys(True, True):
+            assert torch.equal(a[key], b[key]), key
+
+
+@pytest.mark.skipif(not compiler_found(), reason="torch.compile needs a C++ compiler")
+def test_one_graph_from_action_to_reset_compiles_without_dynamic_shapes():
+    """The step and the reset of its ended rows compile as one graph (fullgraph=True) with no
+    data-dependent shape allowed, and give the host path's compiled rollout."""
+    config = torch._dynamo.config
+    with config.patch(capture_dynamic_output_shape_ops=False, capture_scalar_outputs=False):
+        torch._dynamo.reset()
+        ring = ParkingEnv(64, seed=2, config=BUSY, reset_in_step=True, blocks_ahead=3,
+                          compile_step=True)
+        ours = rollout(ring, 40, seed=4)
+    host = ParkingEnv(64, seed=2, config=BUSY, reset_in_step=False, compile_step=True)
+    assert_same_rollout(ours, rollout(host, 40, seed=4))
+
+
+class HostReads(TorchDispatchMode):
+    """Counts the ops that read a tensor's values back to the host (on CUDA each is a
+    synchronisation): scalar reads, ``nonzero``, ``equal``; ``Tensor.tolist`` is counted by
+    the test (it does not pass through the dispatcher on a CPU)."""
+
+    READS = ("aten._local_scalar_dense", "aten.nonzero", "aten.equal", "aten.is_nonzero")
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.count = 0
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        if str(func.overloadpacket) in self.READS:
+            self.count += 1
+        return func(*args, **(kwargs or {}))
+
+
+def host_reads(env: ParkingEnv, steps: int, monkeypatch) -> int:
+    td = env.reset()
+    actions = random_actions(env.num_envs, steps, 0)
+    tolist = torch.Tensor.tolist
+    calls = []
+
+    def counted(self):
+        calls.append(1)
+        return tolist(self)
+
+    monkeypatch.setattr(torch.Tensor, "tolist", counted)
+    with HostReads() as reads:
+        for action in actions:
+            td = env.step_and_maybe_reset(td.set("action", action))[1]
+    monkeypatch.undo()
+    return reads.count + len(calls)
+
+
+def test_the_host_reads_back_once_every_blocks_ahead_steps(monkeypatch):
+    steps = 48
+    ring = ParkingEnv(32, seed=1, config=BUSY, reset_in_step=True, blocks_ahead=8)
+    assert host_reads(ring, steps, monkeypatch) <= steps // 8 + 1
+    host = ParkingEnv(32, seed=1, config=BUSY, reset_in_step=False)
+    assert host_reads(host, steps, monkeypatch) >= steps  # the counter sees the host path's
+
+
+def test_a_non_finite_action_stops_its_row_and_raises_at_the_next_read():
+    env = ParkingEnv(4, seed=0, reset_in_step=True, blocks_ahead=3)
+    td = env.reset()
+    still = env.state
+    action = torch.full((4, 2), 0.5)
+    action[2, 0] = float("nan")
+    td, td_ = env.step_and_maybe_reset(td.set("action", action))
+    moved = env.state
+    assert torch.equal(moved.pose[2], still.pose[2]) and int(moved.steps[2]) == 1
+    assert not torch.equal(moved.pose[0], still.pose[0])
+    with pytest.raises(ValueError, match="action must be finite"):
+        for _ in range(3):
+            td_ = env.step_and_maybe_reset(td_.set("action", torch.zeros(4, 2)))[1]
+    # Not validated: no error, the row still stands still.
+    quiet = ParkingEnv(4, seed=0, reset_in_step=True, blocks_ahead=1, validate_actions=False)
+    td = quiet.reset()
+    for _ in range(4):
+        td = quiet.step_and_maybe_reset(td.set("action", action))[1]
+    assert torch.equal(quiet.state.pose[2], still.pose[2])
+
+
+def test_a_snapshot_continues_exactly_and_the_other_path_refuses_it():
+    env = ParkingEnv(24, seed=6, config=BUSY, reset_in_step=True, blocks_ahead=2)
+    td = env.reset()
+    for action in random_actions(24, 9, 1):
+        td = env.step_and_maybe_reset(td.set("action", action))[1]
+    saved = env.snapshot()
+    again = ParkingEnv(24, seed=0, config=BUSY, reset_in_step=True, blocks_ahead=2)
+    again.restore(saved)
+    for action in random_actions(24, 15, 2):
+        a, a_ = env.step_and_maybe_reset(td.clone().set("action", action))
+        b, b_ = again.step_and_maybe_reset(td.clone().set("action", action))
+        assert_same_rollout([(b, b_)], [(a, a_)])
+        td = a_
+    host = ParkingEnv(24, seed=0, config=BUSY, reset_in_step=False)
+    with pytest.raises(ValueError, match=r"built otherwise: reset_in_step=True in the snapshot"):
+        host.restore(saved)
+    other = ParkingEnv(24, seed=0, config=BUSY, reset_in_step=True, blocks_ahead=3)
+    with pytest.raises(ValueError, match=r"built otherwise: ring_blocks=3 in the snapshot"):
+        other.restore(saved)
+    bad = {**saved, "ring_counters": torch.tensor([5, 0, 0])}  # a block never drawn
+    with pytest.raises(ValueError, match=r"snapshot\['ring_counters'\]"):
+        again.restore(bad)
+
+
+def test_lots_drawn_ahead_at_another_occupancy_are_discarded():
+    env = ParkingEnv(64, seed=0, config=ParkingConfig(occupancy=0.0), reset_in_step=True,
+                     blocks_ahead=4)
+    env.reset()  # four blocks drawn ahead, empty lots
+    env.occupancy = 1.0
+    mask = torch.ones(64, 1, dtype=torch.bool)
+    env.reset(TensorDict({"_reset": mask}, batch_size=[64]))
+    slots = env.layout.num_slots
+    assert (env.state.present[:, :slots].sum(1) == slots - 1).all()
+
+
+@pytest.mark.parametrize("aids", [None, AIDED], ids=["paper", "aided"])
+def test_the_spec_check_passes_and_no_two_tensors_share_memory(aids):
+    env = ParkingEnv(8, seed=0, aids=aids, reset_in_step=True, blocks_ahead=2)
+    check_env_specs(env)
+    td = env.reset()
+    for action in random_actions(8, 6, 2):
+        td = env.step_and_maybe_reset(td.set("action", action))[1]
+        tensors = [*torch.utils._pytree.tree_leaves(env._state),
+                   *torch.utils._pytree.tree_leaves(env._ring), env._observation, env._cost]
+        pointers = [t.untyped_storage().data_ptr() for t in tensors]
+        assert len(set(pointers)) == len(pointers)
+
+
+def test_blocks_ahead_is_checked():
+    with pytest.raises(ValueError, match="blocks_ahead must be an int >= 1, got 0"):
+        ParkingEnv(2, reset_in_step=True, blocks_ahead=0)
+    with pytest.raises(TypeError, match="reset_in_step must be a bool, got 'yes'"):
+        ParkingEnv(2, reset_in_step="yes")
