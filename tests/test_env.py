@@ -60,7 +60,8 @@ def test_partial_reset_leaves_other_rows_bit_identical(device):
 
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
 def test_non_finite_action_raises(bad, device):
-    env = ParkingEnv(2, seed=0, device=device)
+    """The host path's check (reset_in_step's, read later, is in tests/test_ring.py)."""
+    env = ParkingEnv(2, seed=0, device=device, reset_in_step=False)
     env.reset()
     before = [t.clone() for t in env.state]
     with pytest.raises(ValueError, match="action must be finite"):

@@ -172,6 +172,14 @@ def test_a_non_finite_action_stops_its_row_and_raises_at_the_next_read():
     with pytest.raises(ValueError, match="action must be finite"):
         for _ in range(3):
             td_ = env.step_and_maybe_reset(td_.set("action", torch.zeros(4, 2)))[1]
+    # A step alone: the same, the error at a later reset's read of the counters.
+    env = ParkingEnv(4, seed=0, reset_in_step=True, blocks_ahead=3)
+    env.reset()
+    env.step(TensorDict({"action": action}, batch_size=[4]))
+    assert torch.equal(env.state.pose[2], still.pose[2])
+    with pytest.raises(ValueError, match="action must be finite"):
+        for _ in range(3):
+            env.reset()
     # Not validated: no error, the row still stands still.
     quiet = ParkingEnv(4, seed=0, reset_in_step=True, blocks_ahead=1, validate_actions=False)
     td = quiet.reset()

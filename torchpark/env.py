@@ -59,7 +59,7 @@ from torchpark.config import (
 from torchpark.sim.episodes import draw_lots
 from torchpark.sim.layout import build_layout
 from torchpark.sim.observation import observation_dim, observe
-from torchpark.sim.ring import Counters, reset_rows, step_and_reset
+from torchpark.sim.ring import Counters, guarded_step, reset_rows, step_and_reset
 from torchpark.sim.step import ParkingState, put_rows_, take_rows
 from torchpark.sim.world import World, build_world
 
@@ -156,9 +156,10 @@ class ParkingEnv(EnvBase):
         compile_kwargs: passed to ``torch.compile``.
         validate_actions: raise on non-finite actions (the state is then left as it was). The
             test runs inside the step; reading its bool is free on CPU, a synchronisation on
-            CUDA. With ``reset_in_step``, ``step_and_maybe_reset`` reads it with the counters
-            instead, once every ``blocks_ahead`` steps: a row given a non-finite action
-            takes (0, 0) (it stands still) and the ValueError comes at that read.
+            CUDA. With ``reset_in_step`` it is read with the ring's counters instead, once
+            every ``blocks_ahead`` hand-outs (a ``step_and_maybe_reset`` or a reset): a row
+            given a non-finite action takes (0, 0) (it stands still) and the ValueError
+            comes at that read.
         reset_in_step: ``step_and_maybe_reset`` (rollouts, collectors) resets the rows a step
             ends inside the step's function, one graph from action to the next observation,
             with no host read-back per step (:mod:`torchpark.sim.ring`). None (default): on
@@ -251,16 +252,17 @@ class ParkingEnv(EnvBase):
         self._fields = partial(output_fields, aid_keys=self._aid_keys,
                                position=agent.observe_position)
         functions = [step, reset, partial(step_and_reset, step, self._fields),
-                     partial(reset_rows)]
+                     partial(reset_rows), partial(guarded_step, step)]
         if compile_step:
             _allow_recompiles()
             kwargs = {"fullgraph": True, **(compile_kwargs or {})}
             functions = [torch.compile(f, **kwargs) for f in functions]
         # The step; the reset's work: N new episodes at a time (lots, start poses, first
         # observations), drawn ahead and handed out in order, each once, to the rows that
-        # reset; with reset_in_step, the step and that reset as one function, and the reset
-        # of a mask's rows from the ring.
-        self._step_fn, self._new_episodes, self._step_reset_fn, self._reset_fn = functions
+        # reset; with reset_in_step, the step and that reset as one function, the reset of a
+        # mask's rows from the ring, and the step alone with its action check on the device.
+        (self._step_fn, self._new_episodes, self._step_reset_fn, self._reset_fn,
+         self._guarded_fn) = functions
         self.reset_in_step = reset_in_step
         self._make_specs()
         self._state, self._observation, self._cost = self._zeros()
@@ -391,9 +393,9 @@ class ParkingEnv(EnvBase):
         block, bad = torch.stack((self._counters.block, self._bad_action.long())).tolist()
         if bad and self.validate_actions:
             self._bad_action.fill_(False)
-            raise ValueError(f"action must be finite (no NaN or inf); a non-finite value "
-                             f"reached step_and_maybe_reset within the last "
-                             f"{self._blocks - 1} steps (its rows stood still)")
+            raise ValueError("action must be finite (no NaN or inf); a non-finite value "
+                             "reached a step since the env's last read of its counters (its "
+                             "rows stood still)")
         self._known, self._unread = block, 0
         n = self.num_envs
         while self._drawn < block + self._blocks:
@@ -803,9 +805,14 @@ class ParkingEnv(EnvBase):
             self._after_reset = TensorDict(after, batch_size=self.batch_size,
                                            device=self.device)
             return TensorDict(reached, batch_size=self.batch_size, device=self.device)
-        state, out, finite = self._step_fn(self._state, action)
-        if self.validate_actions and not bool(finite):  # before the state is kept
-            raise ValueError("action must be finite (no NaN or inf); got a non-finite value")
+        if self.reset_in_step:  # the action check read with the ring's counters
+            state, out, self._bad_action = self._guarded_fn(self._state, action,
+                                                            self._bad_action)
+        else:
+            state, out, finite = self._step_fn(self._state, action)
+            if self.validate_actions and not bool(finite):  # before the state is kept
+                raise ValueError("action must be finite (no NaN or inf); got a non-finite "
+                                 "value")
         self._state, self._observation, self._cost = state, out.observation, out.cost[:, 0]
         return self._outputs(**{k: v for k, v in out._asdict().items()
                                 if k not in ("observation", "cost")})

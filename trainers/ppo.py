@@ -204,13 +204,16 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
             ended = gather_episodes(batch, world)
             train_time = time.perf_counter() - train_start
             if world.main:
+                # The last minibatch's losses, read back together (one sync on CUDA).
+                names = ("objective", "critic", "kl_approx", "clip_fraction")
+                last = torch.stack([losses[f"loss_{k}" if k in ("objective", "critic") else k]
+                                    .detach() for k in names]).tolist()
                 scalars = {
                     **episode_stats(ended, repeat),
                     "curriculum/occupancy": curriculum.occupancy,
                     "curriculum/phase": curriculum.phase,
                     "curriculum/success_threshold": env.base_env.success_threshold,
-                    **{f"loss/{k}": losses[f"loss_{k}"].item() for k in ("objective", "critic")},
-                    **{f"loss/{k}": losses[k].item() for k in ("kl_approx", "clip_fraction")},
+                    **{f"loss/{k}": v for k, v in zip(names, last, strict=True)},
                     "time/collect_fps": batch_frames / collect_time,
                     "time/train_fps": batch_frames / train_time,
                     "time/fps": batch_frames / (collect_time + train_time),

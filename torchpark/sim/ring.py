@@ -62,15 +62,21 @@ def reset_rows(done: Tensor, rows: tuple, ring: tuple, counters: Counters
     return mux_rows(done, take_rows(ring, index), rows), counters
 
 
+def guarded_step(step: Callable, state: tuple, action: Tensor, bad_action: Tensor) -> tuple:
+    """``step(state, action) -> (state, StepResult, finite)`` with no host read for the action
+    check: a row whose action (N, 2) holds a non-finite value takes the action (0, 0) instead
+    (it stands still) and sets ``bad_action`` () bool, which the host reads with the
+    counters. Returns (state, StepResult, bad_action)."""
+    finite = action.isfinite().all(dim=-1, keepdim=True)
+    state, out, _ = step(state, torch.where(finite, action, 0.0))
+    return state, out, bad_action | ~finite.all()
+
+
 def step_and_reset(step: Callable, fields: Callable, state: tuple, action: Tensor,
                    ring: tuple, counters: Counters, bad_action: Tensor) -> tuple:
-    """One step of every row and the reset of the rows it ends, as one function (one graph
-    when compiled).
-
-    ``step(state, action) -> (state, StepResult, finite)`` is the env's step; ``fields(state,
-    observation, cost) -> dict`` the env's outputs that are read from its state. A row whose
-    action (N, 2) holds a non-finite value takes the action (0, 0) instead (it stands
-    still) and sets ``bad_action`` () bool, which the host reads with the counters.
+    """One step of every row (:func:`guarded_step`) and the reset of the rows it ends, as one
+    function (one graph when compiled). ``fields(state, observation, cost) -> dict``: the
+    env's outputs that are read from its state.
 
     Returns (the rows after the reset: (state, observation (N, D), cost (N,)); the step's
     outputs, ``StepResult`` fields beside ``fields`` of the state the step reached: what
@@ -78,8 +84,7 @@ def step_and_reset(step: Callable, fields: Callable, state: tuple, action: Tenso
     returns for the rows after it: copies of their ``fields`` (the env keeps the rows) and
     the end flags, all False; the counters; ``bad_action``).
     """
-    finite = action.isfinite().all(dim=-1, keepdim=True)
-    state, out, _ = step(state, torch.where(finite, action, 0.0))
+    state, out, bad_action = guarded_step(step, state, action, bad_action)
     done = out.done[:, 0]
     stepped = (state, out.observation, out.cost[:, 0])
     rows, counters = reset_rows(done, stepped, ring, counters)
@@ -87,4 +92,4 @@ def step_and_reset(step: Callable, fields: Callable, state: tuple, action: Tenso
                   if k not in ("observation", "cost")}, **fields(*stepped)}
     after = {**{k: v.clone() for k, v in fields(*rows).items()},
              **{k: torch.zeros_like(out.done) for k in END_FLAGS}}
-    return rows, reached, after, counters, bad_action | ~finite.all()
+    return rows, reached, after, counters, bad_action
