@@ -22,6 +22,8 @@ cudagraphs: compiled with ``mode="reduce-overhead"``, CUDA only):
 - reset: ``ParkingEnv._reset`` of a share of the rows (0.1 %, 1 %, 10 %, 100 %), ms per
   call and its ratio to one raw step, over enough calls to include the batched draws of
   the episodes handed out (their share of the cost).
+``--reset-in-step on|off`` picks the env's reset path (``ParkingEnv(reset_in_step=...)``: the
+reset of the ended rows inside the step's graph, or the host path; default: the device's).
 Timed with CUDA events on CUDA (the host clock elsewhere) over ``--calls`` calls after a
 warm-up, best of ``--repeats``. On CUDA also the peak memory per env and the host
 synchronisations per call (``torch.cuda.set_sync_debug_mode``). ``--profile N`` writes a
