@@ -44,6 +44,7 @@ from torchpark.aids.step import (
     INTERVENTIONS,
     AidedState,
     AidState,
+    agent_observation,
     agent_step,
     aided_new_episodes,
 )
@@ -239,7 +240,8 @@ class ParkingEnv(EnvBase):
         step = agent_step(self._world, angles, cfg, aids)
         reset = partial(aided_new_episodes, world=self._world, cfg=cfg)
         # A held action's steps of dt are one function (one graph when compiled).
-        step = hold(step, self.action_repeat)
+        step = hold(step, self.action_repeat,
+                    partial(agent_observation, world=self._world, cfg=cfg))
         if compile_step and not compiler_found():
             warnings.warn("ParkingEnv(compile_step=True) runs eager: torch.compile needs a C++ "
                           "compiler and none was found (install g++ or set CXX)",

@@ -103,26 +103,34 @@ def aided_control(state: AidedState, action: Tensor, world: World, steer_angles:
 
 
 def aided_step(state: AidedState, action: Tensor, world: World, steer_angles: Tensor,
-               cfg: ParkingConfig, aids: AidsConfig
+               cfg: ParkingConfig, aids: AidsConfig, scan: bool = True
                ) -> tuple[AidedState, StepResult, Tensor]:
     """One step of dt with the aids (:func:`aided_control`), committed; the brake's penalty
     joins the paper's reward. ``steer_angles``: the brake's (K,) angles
-    (:func:`torchpark.aids.brake.steer_angles`). Returns the new state, what the step emits,
-    and whether every action was finite."""
+    (:func:`torchpark.aids.brake.steer_angles`); ``scan``: as
+    :func:`~torchpark.sim.step.commit`'s. Returns the new state, what the step emits, and
+    whether every action was finite."""
     control = aided_control(state, action, world, steer_angles, cfg, aids)
-    sim, out = commit(state.sim, control.pose, control.speed, control.collision, world, cfg)
+    sim, out = commit(state.sim, control.pose, control.speed, control.collision, world, cfg,
+                      scan)
     if aids.brake is not None:
         out = replace(out, reward=out.reward + torch.where(control.intervened[:, None],
                                                           aids.brake.penalty, 0.0))
     return AidedState(sim, control.aids), out, action.isfinite().all()
 
 
-def paper_step(state: AidedState, action: Tensor, world: World, cfg: ParkingConfig
-               ) -> tuple[AidedState, StepResult, Tensor]:
-    """The paper's step (:func:`~torchpark.sim.step.parking_step`) on the agent's state: the
-    aids' state passes through untouched."""
-    sim, out, finite = parking_step(state.sim, action, world, cfg)
+def paper_step(state: AidedState, action: Tensor, world: World, cfg: ParkingConfig,
+               scan: bool = True) -> tuple[AidedState, StepResult, Tensor]:
+    """The paper's step (:func:`~torchpark.sim.step.parking_step`, ``scan`` passed on) on the
+    agent's state: the aids' state passes through untouched."""
+    sim, out, finite = parking_step(state.sim, action, world, cfg, scan)
     return AidedState(sim, state.aids), out, finite
+
+
+def agent_observation(state: AidedState, world: World, cfg: ParkingConfig) -> Tensor:
+    """The observation (N, NAV_DIM + n_rays) of an agent's state (the paper's,
+    :func:`~torchpark.sim.observation.observe`)."""
+    return observe(state.sim, world, cfg)[0]
 
 
 def agent_step(world: World, steer_angles: Tensor, cfg: ParkingConfig,

@@ -28,15 +28,21 @@ def observation_dim(cfg: ParkingConfig) -> int:
     return NAV_DIM + cfg.lidar.n_rays
 
 
-def observe(state: ParkingState, world: World, cfg: ParkingConfig) -> tuple[Tensor, Tensor]:
+def observe(state: ParkingState, world: World, cfg: ParkingConfig, scan: bool = True
+            ) -> tuple[Tensor, Tensor]:
     """Observation (N, NAV_DIM + n_rays) and parking cost C (N,) of a state.
 
     Observation: [dx, dy, cos psi, sin psi, v, cos alpha, sin alpha, lidar / max_range], with
-    dx, dy = goal - rear axle (world frame, m) and alpha the goal heading.
+    dx, dy = goal - rear axle (world frame, m) and alpha the goal heading. ``scan=False``
+    leaves the LIDAR's part 0 (for a step of dt whose observation nobody reads: the held
+    steps of :func:`torchpark.aids.repeat.hold` but the last).
     """
     ego = vehicle_obb(state.pose, cfg.vehicle)
-    lidar = lidar_scan(ego.cx, ego.cy, ego.cos, ego.sin, world.rotation, world.obstacles,
-                       state.present, cfg.lidar.n_rays, cfg.lidar.max_range)
+    if scan:
+        lidar = lidar_scan(ego.cx, ego.cy, ego.cos, ego.sin, world.rotation, world.obstacles,
+                           state.present, cfg.lidar.n_rays, cfg.lidar.max_range)
+    else:
+        lidar = state.pose.new_zeros(state.pose.shape[0], cfg.lidar.n_rays)
     dx = state.goal[:, 0] - state.pose[:, 0]
     dy = state.goal[:, 1] - state.pose[:, 1]
     alpha = state.goal[:, 2]

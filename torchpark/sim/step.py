@@ -100,13 +100,13 @@ def move(pose: Tensor, v: Tensor, delta: Tensor, present: Tensor, world: World,
 
 
 def commit(state: ParkingState, pose: Tensor, speed: Tensor, collision: Tensor, world: World,
-           cfg: ParkingConfig) -> tuple[ParkingState, StepResult]:
+           cfg: ParkingConfig, scan: bool = True) -> tuple[ParkingState, StepResult]:
     """The state after a step of dt that ends at ``pose`` (N, 3) with ``speed`` (N,), having
-    touched an obstacle where ``collision`` (N,), and what the step emits: observation,
-    Table-1 reward, and the episode's end (success or collision terminates, max_steps
-    truncates)."""
+    touched an obstacle where ``collision`` (N,), and what the step emits: observation
+    (its LIDAR part 0 with ``scan=False``, :func:`observe`), Table-1 reward, and the
+    episode's end (success or collision terminates, max_steps truncates)."""
     state = replace(state, pose=pose, speed=speed, steps=state.steps + 1)
-    observation, cost = observe(state, world, cfg)
+    observation, cost = observe(state, world, cfg, scan)
     success = is_success(cost, world.success_threshold)
     reward = parking_reward(cost, collision, success, cfg.reward)
     terminated = collision | success
@@ -115,8 +115,8 @@ def commit(state: ParkingState, pose: Tensor, speed: Tensor, collision: Tensor, 
     return state, StepResult(observation, *(t[:, None] for t in column))
 
 
-def parking_step(state: ParkingState, action: Tensor, world: World, cfg: ParkingConfig
-                 ) -> tuple[ParkingState, StepResult, Tensor]:
+def parking_step(state: ParkingState, action: Tensor, world: World, cfg: ParkingConfig,
+                 scan: bool = True) -> tuple[ParkingState, StepResult, Tensor]:
     """The paper's step for every env: clamp the (v, delta) actions (N, 2) to the limits,
     one bicycle step of dt, the SAT collision test, then observe, reward, done.
 
@@ -125,7 +125,7 @@ def parking_step(state: ParkingState, action: Tensor, world: World, cfg: Parking
     """
     v, delta = clamp_action(action, cfg.vehicle)
     pose, collision = move(state.pose, v, delta, state.present, world, cfg)
-    state, result = commit(state, pose, v, collision, world, cfg)
+    state, result = commit(state, pose, v, collision, world, cfg, scan)
     return state, result, action.isfinite().all()
 
 
