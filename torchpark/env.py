@@ -60,7 +60,7 @@ from torchpark.config import (
 from torchpark.sim.episodes import draw_lots
 from torchpark.sim.layout import build_layout
 from torchpark.sim.observation import observation_dim, observe
-from torchpark.sim.ring import Counters, guarded_step, reset_rows, step_and_reset
+from torchpark.sim.ring import END_FLAGS, Counters, guarded_step, reset_rows, step_and_reset
 from torchpark.sim.step import ParkingState, put_rows_, take_rows
 from torchpark.sim.world import World, build_world
 
@@ -682,8 +682,7 @@ class ParkingEnv(EnvBase):
 
     def _reset_output(self) -> TensorDictBase:
         no = torch.zeros(self.num_envs, 1, dtype=torch.bool, device=self.device)
-        return self._outputs(success=no, collision=no.clone(), done=no.clone(),
-                             terminated=no.clone(), truncated=no.clone())
+        return self._outputs(**{key: no.clone() for key in END_FLAGS})
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         n = self.num_envs

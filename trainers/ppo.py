@@ -205,15 +205,15 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
             train_time = time.perf_counter() - train_start
             if world.main:
                 # The last minibatch's losses, read back together (one sync on CUDA).
-                names = ("objective", "critic", "kl_approx", "clip_fraction")
-                last = torch.stack([losses[f"loss_{k}" if k in ("objective", "critic") else k]
-                                    .detach() for k in names]).tolist()
+                tags = {"loss/objective": "loss_objective", "loss/critic": "loss_critic",
+                        "loss/kl_approx": "kl_approx", "loss/clip_fraction": "clip_fraction"}
+                last = torch.stack([losses[key].detach() for key in tags.values()]).tolist()
                 scalars = {
                     **episode_stats(ended, repeat),
                     "curriculum/occupancy": curriculum.occupancy,
                     "curriculum/phase": curriculum.phase,
                     "curriculum/success_threshold": env.base_env.success_threshold,
-                    **{f"loss/{k}": v for k, v in zip(names, last, strict=True)},
+                    **dict(zip(tags, last, strict=True)),
                     "time/collect_fps": batch_frames / collect_time,
                     "time/train_fps": batch_frames / train_time,
                     "time/fps": batch_frames / (collect_time + train_time),

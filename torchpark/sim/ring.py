@@ -26,7 +26,7 @@ from torch import Tensor
 from torchpark.sim.step import StepResult, mux_rows, take_rows
 
 # What a reset reports for every row, all False: (N, 1) bool each.
-END_FLAGS = ("terminated", "truncated", "done", "success", "collision")
+END_FLAGS = ("success", "collision", "done", "terminated", "truncated")
 
 
 class Counters(NamedTuple):
