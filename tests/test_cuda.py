@@ -1,6 +1,7 @@
-"""What only a GPU can show (``python -m pytest --device cuda``; skipped on a CPU): the
-collector's path makes no host synchronisation between the host's reads of the ring, and
-the step-and-reset graph replayed as a CUDA graph gives the compiled graph's rollout."""
+"""What only a GPU can show (``python -m pytest --device cuda``; skipped on a CPU): the env's
+and the trainer's collector paths make no host synchronisation between the host's reads of
+the ring, and the step-and-reset graph replayed as a CUDA graph gives the compiled graph's
+rollout."""
 
 from __future__ import annotations
 
@@ -12,6 +13,10 @@ import torch
 from tests.conftest import random_actions
 from tests.test_ring import BUSY, assert_same_rollout, rollout
 from torchpark import ParkingEnv
+from trainers.collection import RankCollection
+from trainers.config import load_config
+from trainers.distributed import World
+from trainers.utils import build_models
 
 
 @pytest.fixture
@@ -52,3 +57,26 @@ def test_the_one_graph_path_on_cuda_gives_the_host_paths_rollout(cuda):
     host = ParkingEnv(256, seed=4, device=cuda, config=BUSY, reset_in_step=False)
     ring = ParkingEnv(256, seed=4, device=cuda, config=BUSY, reset_in_step=True)
     assert_same_rollout(rollout(ring, 50, seed=3), rollout(host, 50, seed=3))
+
+
+def test_the_gpu_presets_collector_syncs_once_per_batch(cuda):
+    """The trainer's collector (the gpu preset: the env resetting in its step, the sync-free
+    transforms, the policy compiled) at 1,024 envs: at most one synchronisation per batch of
+    8 steps, the host's read of the ring."""
+    steps = 8
+    cfg = load_config("gpu", ["env.num_envs=1024", f"collector.frames_per_batch={1024 * steps * 5}",
+                              "loss.mini_batch_size=1024"])
+    actor, _ = build_models(cfg)
+    collector = RankCollection(cfg, actor.to(cuda), World(device=cuda), 10 ** 9).collector
+    batches = iter(collector)
+    next(batches)  # the first reset, draws and compilation
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        torch.cuda.set_sync_debug_mode("warn")
+        try:
+            for _ in range(3):
+                next(batches)
+        finally:
+            torch.cuda.set_sync_debug_mode("default")
+    collector.shutdown()
+    assert sum("synchroniz" in str(w.message) for w in caught) <= 3

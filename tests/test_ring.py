@@ -5,6 +5,9 @@ steps, the deferred action check, snapshots, and the discards of episodes drawn 
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Callable, Iterator
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -133,9 +136,10 @@ class HostReads(TorchDispatchMode):
         return func(*args, **(kwargs or {}))
 
 
-def host_reads(env: ParkingEnv, steps: int, monkeypatch) -> int:
-    td = env.reset()
-    actions = random_actions(env.num_envs, steps, 0)
+@contextlib.contextmanager
+def reads_counted(monkeypatch) -> Iterator[Callable[[], int]]:
+    """The host reads made inside the block (:class:`HostReads` plus ``Tensor.tolist``);
+    yields a function that returns their count so far."""
     tolist = torch.Tensor.tolist
     calls = []
 
@@ -143,12 +147,18 @@ def host_reads(env: ParkingEnv, steps: int, monkeypatch) -> int:
         calls.append(1)
         return tolist(self)
 
-    monkeypatch.setattr(torch.Tensor, "tolist", counted)
-    with HostReads() as reads:
+    with monkeypatch.context() as patched, HostReads() as reads:
+        patched.setattr(torch.Tensor, "tolist", counted)
+        yield lambda: reads.count + len(calls)
+
+
+def host_reads(env: ParkingEnv, steps: int, monkeypatch) -> int:
+    td = env.reset()
+    actions = random_actions(env.num_envs, steps, 0)
+    with reads_counted(monkeypatch) as count:
         for action in actions:
             td = env.step_and_maybe_reset(td.set("action", action))[1]
-    monkeypatch.undo()
-    return reads.count + len(calls)
+        return count()
 
 
 def test_the_host_reads_back_once_every_blocks_ahead_steps(monkeypatch):

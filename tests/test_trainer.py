@@ -26,7 +26,6 @@ from torchrl.objectives import ClipPPOLoss
 from torchpark import (
     DockingConfig,
     ParkingConfig,
-    ParkingEnv,
 )
 from torchpark.files import locked
 from torchpark.transforms.features import GOAL_FEATURES
@@ -205,7 +204,7 @@ def test_a_start_checkpoint_with_another_agent_or_a_resume_beside_it_is_refused(
         train(cfg, init=__file__)
 
 
-def test_the_gpu_preset_is_fast_at_a_gpu_size_and_reads_its_env_once_per_batch(monkeypatch):
+def test_the_gpu_preset_is_fast_at_a_gpu_size_and_reads_its_env_once_per_batch():
     """``gpu`` differs from ``fast`` in the env's size and device, the batch, the minibatch and
     the compile switches only, so its agent is fast's; its env, resetting inside its step,
     holds one block of new episodes per step of a batch (the host reads it once a batch)."""
@@ -229,9 +228,9 @@ def test_the_gpu_preset_is_fast_at_a_gpu_size_and_reads_its_env_once_per_batch(m
     assert differs <= {"env.num_envs", "env.device", "collector.frames_per_batch",
                        "loss.mini_batch_size", "optim.compile_update", "logger.exp_name"}
     assert {"env.num_envs", "collector.frames_per_batch", "optim.compile_update"} <= differs
-    monkeypatch.setattr(trainers.utils, "ParkingEnv", partial(ParkingEnv, reset_in_step=True))
-    env = trainers.utils.make_base_env(gpu, training=False, num_envs=4)
-    assert env._blocks == 8 + 1  # 8 env steps per batch
+    on_cpu = dataclasses.replace(gpu, env=dataclasses.replace(gpu.env, reset_in_step=True))
+    env = trainers.utils.make_base_env(on_cpu, training=False, num_envs=4)
+    assert env.reset_in_step and env._blocks == 8 + 1  # 8 env steps per batch
 
 
 def test_unknown_preset_or_field_is_an_error():

@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from functools import partial
 
 import numpy as np
@@ -749,19 +749,31 @@ class ParkingEnv(EnvBase):
         :meth:`_step` runs the step and the reset of its ended rows as one function and keeps
         what the reset returns; then the same merge as the host path, with the padding of the
         other keys as a mask on the device (done rows, unless every row is done)."""
-        self._resetting = True
-        try:
-            tensordict = self.step(tensordict)
-        finally:
-            self._resetting = False
+        tensordict, after = self.step_resetting(self.step, tensordict)
         tensordict_ = self._step_mdp(tensordict)
         done = tensordict.get(("next", "done")).reshape(self.batch_size)
-        after, self._after_reset = self._after_reset, None
         others = tensordict_.exclude(*after.keys())
         tensordict_.update(after)
         if not others.is_empty():  # torchrl pads partial resets only
             tensordict_.update(others.masked_fill(done & ~done.all(), 0))
         return tensordict, tensordict_
+
+    def step_resetting(self, step: Callable[[TensorDictBase], TensorDictBase],
+                       tensordict: TensorDictBase) -> tuple[TensorDictBase, TensorDictBase]:
+        """``step(tensordict)``, this env's ``step`` or that of a ``TransformedEnv`` around it,
+        with the rows it ends reset inside this env's step function (``reset_in_step``).
+        Returns its output (an ended row's last observation under "next") and what this
+        env's reset returns for every row after it (the reset rows' new episodes, the other
+        rows as they are, the end flags False)."""
+        if not self.reset_in_step:
+            raise RuntimeError("ParkingEnv.step_resetting needs reset_in_step=True")
+        self._resetting = True
+        try:
+            tensordict = step(tensordict)
+        finally:
+            self._resetting = False
+        after, self._after_reset = self._after_reset, None
+        return tensordict, after
 
     def _draw_episodes_ahead(self) -> None:
         """Replace the host path's episodes not handed out yet by N new ones."""

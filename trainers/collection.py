@@ -78,9 +78,12 @@ class RankCollection:
             self.env = make_env(cfg, num_envs=num_envs,
                                 seed=rank_seed(cfg.seed, world.rank, d.world_size),
                                 replicas=d.world_size)
+            # No trajectory ids (nothing here reads them): torchrl reads done.any() back at
+            # every step to count them.
             self.collector = Collector(self.env, actor, frames_per_batch=steps_per_batch,
                                        total_frames=total_steps, device=world.device,
-                                       compile_policy=cfg.collector.compile_policy)
+                                       compile_policy=cfg.collector.compile_policy,
+                                       track_traj_ids=False)
         else:
             seeds = [rank_seed(cfg.seed, world.rank * self.workers + w, replicas)
                      for w in range(self.workers)]

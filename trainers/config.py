@@ -31,6 +31,10 @@ class EnvConfig:
     num_envs: int = 1
     device: str = "cpu"
     compile_step: bool = False
+    # ParkingEnv(reset_in_step=...): the ended rows reset inside the step's function, with no
+    # read back per step (torchpark.sim.ring). None: on CUDA only (on the CPU the host path
+    # is as fast).
+    reset_in_step: bool | None = None
     # E.g. env.task.max_steps=50; env.task.reward.collision_penalty=-1000 (far from the goal
     # the paper's per-step reward 1 - cbrt(C) is below 0, and a -200 crash costs less than a
     # long failed episode); env.task.reward.success_threshold (training's test only).

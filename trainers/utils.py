@@ -20,12 +20,10 @@ from torchrl.envs import (
     Compose,
     DTypeCastTransform,
     InitTracker,
-    RewardScaling,
     RewardSum,
     StepCounter,
     Transform,
     TransformedEnv,
-    VecNormV2,
 )
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
@@ -38,15 +36,17 @@ from torchpark import (
     PowerActionMap,
 )
 from torchpark.aids.step import BRAKED
+from torchpark.transforms.sync_free import SyncFreeEnv, SyncFreeRewardScaling, SyncFreeVecNorm
 from trainers.config import ModelConfig, TrainConfig, env_configs
 
 NORMALISED = "observation_norm"  # the normalised observation the networks read
 
-# torchrl warns that VecNormV2 on a batched env is experimental each time one is attached:
-# ours is deliberate (one set of statistics over the batch, reduce_batch_dims=True, merged
-# exactly across ranks and workers, tests/test_trainer.py and tests/test_distributed.py).
+# torchrl warns that VecNormV2 (here SyncFreeVecNorm) on a batched env is experimental each
+# time one is attached: ours is deliberate (one set of statistics over the batch,
+# reduce_batch_dims=True, merged exactly across ranks and workers, tests/test_trainer.py and
+# tests/test_distributed.py).
 warnings.filterwarnings("ignore", category=UserWarning,
-                        message="Support of VecNormV2 for containers with non-empty batch-size")
+                        message="Support of .* for containers with non-empty batch-size")
 # Stable-Baselines3's progress bar (the SB3 recipes' progress_bar=True) is tqdm's rich one,
 # which tqdm calls experimental on every run.
 warnings.filterwarnings("ignore", message="rich is experimental/alpha")
@@ -132,24 +132,25 @@ def make_base_env(cfg: TrainConfig, training: bool, num_envs: int | None = None,
     return ParkingEnv(cfg.env.num_envs if num_envs is None else num_envs,
                       device=cfg.env.device, seed=cfg.seed if seed is None else seed,
                       config=config, aids=aids, compile_step=cfg.env.compile_step and training,
-                      blocks_ahead=max(1, steps))
+                      reset_in_step=cfg.env.reset_in_step, blocks_ahead=max(1, steps))
 
 
 def make_env(cfg: TrainConfig, num_envs: int | None = None, seed: int | None = None,
              replicas: int = 1) -> TransformedEnv:
     """The training env: ParkingEnv, episode statistics, the curriculum, observation norm
-    (written to ``NORMALISED``).
+    (written to ``NORMALISED``). Its ``step_and_maybe_reset`` reads nothing back where the env
+    resets inside its step (CUDA; ``torchpark.transforms.sync_free``).
 
     One of ``replicas`` copies stepping in lockstep (data-parallel ranks x collector workers,
     ``num_envs`` lots each): the curriculum counts the frames of all of them, and the
     normaliser's moving averages forget
     at the rate of the run's global batch (see :func:`policy_input`)."""
     base = make_base_env(cfg, training=True, num_envs=num_envs, seed=seed)
-    return TransformedEnv(base, Compose(
+    return SyncFreeEnv(base, Compose(
         InitTracker(), StepCounter(), RewardSum(),
         OccupancyCurriculum(cfg.curriculum.levels, cfg.curriculum.frames_per_level, replicas),
         # After RewardSum: the logged episode reward stays in the paper's units.
-        RewardScaling(loc=0.0, scale=cfg.loss.reward_scale),
+        SyncFreeRewardScaling(loc=0.0, scale=cfg.loss.reward_scale),
         *policy_input(cfg, base, replicas),
     ))
 
@@ -212,7 +213,7 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
                        CatTensors([*source, "braked_input"], "observation_policy",
                                   del_keys=False, sort=False)]
         source = ["observation_policy"]
-    return [*transforms, VecNormV2(in_keys=source, out_keys=[NORMALISED],
+    return [*transforms, SyncFreeVecNorm(in_keys=source, out_keys=[NORMALISED],
                                    decay=NORM_DECAY ** replicas, reduce_batch_dims=True)]
 
 
