@@ -53,7 +53,9 @@ def rates(output: str, header: str) -> dict[tuple[int, str, str], float]:
 
 
 def paths_header(output: str) -> str:
-    return next(line for line in output.splitlines() if line.startswith("| N | mode | step"))
+    """The paths table's header row (the resets table's starts "| N | mode | step ms")."""
+    return next(line for line in output.splitlines()
+                if line.startswith("| N | mode | ") and not line.startswith("| N | mode | step ms"))
 
 
 def main() -> None:

@@ -334,12 +334,12 @@ def tables(n: int, mode: str, results: dict[str, dict[str, float]], reference: f
             if "rate" in results.get(path, {}) and "rate" in step else "-"
 
     paths = [p for p in ("step", "step_and_maybe_reset", "rollout") if p in results]
-    row = f"| {n:,} | {mode} | " + " | ".join(
-        f"{cell(results[p])} ({ratio(p)})" if p != "step" else cell(results[p])
-        for p in paths)
+    cells = [f"{cell(results[p])} ({ratio(p)})" if p != "step" else cell(results[p])
+             for p in paths]
     if "collector" in results:
-        row += f" | {cell(results['collector'])}"
-    row += " | " + (f"{step['rate'] / reference:,.0f}x |" if "rate" in step else "- |")
+        cells.append(cell(results["collector"]))
+    cells.append(f"{step['rate'] / reference:,.0f}x" if "rate" in step else "-")
+    row = f"| {n:,} | {mode} | " + " | ".join(cells) + " |"
     if cuda and "rate" in step:
         smr = results.get("step_and_maybe_reset", {})
         row += (f" {step['bytes_per_env'] / 2**20:.4f} | {step['syncs']:.2f} / "
@@ -392,11 +392,11 @@ def main() -> None:
     print(f"reference (numpy, one env): {reference:,.0f} steps/s (best of {spread(refs)})")
     print(f"best of {args.repeats} measurements, the worst in brackets\n")
     shown = [p for p in ("step", "step_and_maybe_reset", "rollout") if p in args.paths]
-    head = ("| N | mode | " + " | ".join(
-        f"{p} env-steps/s" + ("" if p == "step" else " (/ step)") for p in shown)
-        + (" | collector (fast preset) frames/s" if "collector" in args.paths else "")
-        + " | step / reference |"
-        + (" MB per env | host syncs per step / per step_and_maybe_reset |" if cuda else ""))
+    columns = [f"{p} env-steps/s" + ("" if p == "step" else " (/ step)") for p in shown]
+    if "collector" in args.paths:
+        columns.append("collector (fast preset) frames/s")
+    head = ("| N | mode | " + " | ".join([*columns, "step / reference"]) + " |"
+            + (" MB per env | host syncs per step / per step_and_maybe_reset |" if cuda else ""))
     head = head + "\n" + "|---" * head.count(" | ") + "|---|"
     reset_head = ("| N | mode | step ms | " + " | ".join(
         f"reset {100 * s:g} % ms (/ step)" for s in RESET_SHARES) + " |\n"

@@ -24,3 +24,12 @@ def test_the_paths_table_is_read_by_n_mode_and_path():
         (1024, "compiled", "step_and_maybe_reset"): 1036671.0,
         (16384, "compiled", "step"): 3105408.0,
     }
+
+
+def test_a_table_without_the_step_is_read_too():
+    output = """| N | mode | collector (fast preset) frames/s | step / reference |
+|---|---|---|---|
+| 1,024 | compiled | 459,332 [420,698] | - |
+"""
+    assert rates(output, paths_header(output)) == {
+        (1024, "compiled", "collector (fast preset) frames/s"): 459332.0}
