@@ -77,15 +77,18 @@ class SyncFreeVecNorm(VecNormV2):
         reset = tensordict.get("_reset", None)
         if reset is None or not self.stateful or self._loc is None:
             return super()._reset(tensordict, tensordict_reset)
-        before = (self._loc.clone(), self._var.clone(), self._count.clone())
+        before = [leaf.clone() for leaf in self._statistics()]
         out = super()._reset(tensordict, tensordict_reset)
         hold = ~reset.any()
-        for now, was in zip((self._loc, self._var, self._count), before, strict=True):
-            if isinstance(now, TensorDictBase):
-                now.update_(now.where(~hold, was))
-            else:
-                now.copy_(torch.where(hold, was, now))
+        for now, was in zip(self._statistics(), before, strict=True):
+            now.copy_(torch.where(hold, was, now))
         return out
+
+    def _statistics(self) -> list[torch.Tensor]:
+        """The tensors of the running statistics (updated in place by torchrl)."""
+        return [leaf for stat in (self._loc, self._var, self._count)
+                for leaf in (stat.values(True, True) if isinstance(stat, TensorDictBase)
+                             else [stat])]
 
 
 class SyncFreeRewardScaling(RewardScaling):
