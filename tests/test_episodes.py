@@ -64,3 +64,25 @@ def test_pool_only_start_sampler_is_valid():
     assert pool.shape == (64, 3)
     assert (env.state.pose[:, None] == pool[None]).all(-1).any(-1).all()
     assert not env.reset()["collision"].any()
+
+
+@pytest.mark.parametrize("levels", [8, None])  # keys on 8 values (many ties), or uniform
+def test_parked_slots_are_the_smallest_keys_ties_by_index(levels):
+    """occupied_slots against a plain reference: the `parked` non-goal slots first in
+    (key, index) order, for every count from none to all."""
+    from torchpark.sim.episodes import occupied_slots
+
+    gen = torch.Generator().manual_seed(3)
+    rows, slots = 400, 38
+    keys = torch.rand(rows, slots, generator=gen)
+    if levels is not None:
+        keys = (keys * levels).floor() / levels
+    goal = torch.randint(slots, (rows,), generator=gen)
+    parked = torch.randint(slots, (rows,), generator=gen)  # 0 .. S - 1
+    ours = occupied_slots(goal, keys, parked)
+    for r in range(rows):
+        order = sorted((i for i in range(slots) if i != goal[r]),
+                       key=lambda i: (float(keys[r, i]), i))
+        expected = torch.zeros(slots, dtype=torch.bool)
+        expected[order[:int(parked[r])]] = True
+        assert torch.equal(ours[r], expected), r

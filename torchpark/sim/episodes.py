@@ -61,15 +61,21 @@ def draw_lots(num_envs: int, occupancy: float, layout: LotLayout, lot: LotConfig
 
 def occupied_slots(goal_slot: Tensor, keys: Tensor, parked: Tensor) -> Tensor:
     """Which slots hold a parked car, (B, S) bool: the ``parked`` (B,) non-goal slots with
-    the smallest ``keys`` (B, S), so exactly ``parked`` of them, a uniform subset. Each
-    slot's rank among the others by a pairwise comparison (ties broken by index; an (S, S)
-    loop per row that compiles into one kernel, where a sort would not)."""
-    slots = torch.arange(keys.shape[1], device=keys.device)
+    the smallest ``keys`` (B, S) float32 in [0, 1), ties broken by the slot's index, so
+    exactly ``parked`` of them, a uniform subset.
+
+    A non-negative float's bit pattern, read as an integer, orders as its value, so
+    (bits x S + slot) orders the slots by (key, index) and every value is distinct: the
+    slots at or below the row's ``parked``-th smallest are those. One sort of S values per
+    row (a pairwise rank of every slot against every other cost 3x as much, compiled).
+    """
+    s = keys.shape[1]
+    slots = torch.arange(s, device=keys.device)
     # The goal's key is above every other, so it is never among the `parked` smallest.
     keys = torch.where(slots == goal_slot[:, None], 2.0, keys)
-    a, b = keys[:, :, None], keys[:, None, :]  # slot i against slot j
-    before = (b < a) | ((b == a) & (slots[None, :] < slots[:, None]))
-    return before.sum(-1) < parked[:, None]
+    order = keys.contiguous().view(torch.int32).to(torch.int64) * s + slots
+    last = order.sort(dim=1).values.gather(1, (parked - 1).clamp(min=0)[:, None])
+    return (order <= last) & (parked[:, None] > 0)
 
 
 def first_valid(candidates: Tensor, valid: Tensor) -> tuple[Tensor, Tensor]:
