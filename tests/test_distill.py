@@ -15,6 +15,7 @@ import torch
 from tensordict import TensorDict
 from torch.utils._pytree import tree_flatten
 from torchrl.envs import Compose, TransformedEnv
+from torchrl.envs.utils import step_mdp
 
 import trainers.distill as distill_module
 from torchpark import ParkingConfig, ParkingEnv
@@ -193,6 +194,7 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("dagger_epochs", 0), ("lr_decay", 1),
                                           ("settle", -0.01), ("settle", float("nan")),
                                           ("retry", -1.0), ("retry", float("inf")),
+                                          ("gear_hold", -0.5), ("gear_hold", float("nan")),
                                           ("width", 0), ("width", True), ("depth", 9),
                                           ("depth", 2.0)])
 def test_bad_settings_are_refused_by_name(field, value):
@@ -394,6 +396,46 @@ def test_resuming_refuses_what_would_not_continue_the_run(teacher_path, tmp_path
         main([teacher_path, "--out", str(out), *flags, *change])
     assert error in capsys.readouterr().err
     assert (out / "dagger_state.pt").read_bytes() == before
+
+
+def test_a_run_saved_before_a_setting_existed_resumes_at_its_default(teacher_path, tmp_path,
+                                                                    capsys, coarse_planner):
+    flags = ["--envs", "4", "--steps", "4", "--epochs", "1", "--dagger-epochs", "1",
+             "--yardstick", "2", "--approach", "0"]
+    out = tmp_path / "run"
+    main([teacher_path, "--out", str(out), "--iterations", "1", *flags])
+    state = torch.load(out / "dagger_state.pt", weights_only=True)
+    del state["distill"]["gear_hold"]  # as a run saved before gear_hold was added
+    torch.save(state, out / "dagger_state.pt")
+    main([teacher_path, "--out", str(out), "--iterations", "2", "--resume", *flags])
+    assert "resumed after iteration 1 of 2" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        main([teacher_path, "--out", str(out), "--iterations", "3", "--resume",
+              "--gear-hold", "0.5", *flags])
+    assert "has gear_hold=0.0, this command gear_hold=0.5" in capsys.readouterr().err
+
+
+def test_the_teachers_gear_hold_follows_the_car(teacher_path):
+    """Labelling states a student drove: every car has just reversed, so the teacher with a
+    hold labels what the planner gives when each keeps its gear, where the greedy one
+    would turn some of them forwards."""
+    paper = ParkingEnv(256, seed=2)
+    env = TransformedEnv(paper)
+    free = Teacher(teacher_path, env, planner=COARSE_PLAN)
+    held = Teacher(teacher_path, env, planner=dataclasses.replace(COARSE_PLAN, gear_hold=5.0))
+    td = env.reset()
+    for _ in range(2):  # the student reverses for two steps
+        for teacher in (free, held):
+            teacher.label()
+        td = step_mdp(env.step(td.set("action", torch.tensor([[-2.0, 0.0]]).expand(256, 2))))
+    greedy, kept = free.label()[:, 0], held.label()[:, 0]
+    planned = ~(free.intervened | held.intervened | free.state.docking_engaged
+                | held.state.docking_engaged)  # the planner's labels, not the law's or brake's
+    sim = paper.state  # every car has reversed 0.4 m: each keeps reversing where it can
+    every = torch.ones(256, dtype=torch.bool)
+    keeping = plan_control(held.planner, sim.pose, sim.speed, sim.goal_slot, every)[0]
+    assert torch.equal(kept[planned], keeping[planned])
+    assert ((greedy > 0) & (kept < 0) & planned).any()  # labels the hold turned back
 
 
 def test_resuming_refuses_another_teacher_or_no_run(teacher_path, tmp_path, capsys,

@@ -15,6 +15,7 @@ from tests.conftest import polygon
 from torchpark import DockingConfig, ParkingEnv, VehicleConfig
 from torchpark.experts import ExpertConfig, PlannerConfig, PlannerExpert
 from torchpark.experts.planner import (
+    GearHold,
     arcs,
     build_planner,
     cell_index,
@@ -154,6 +155,38 @@ def test_plan_control_drives_at_the_planner_speed_with_its_angles(planner, layou
     assert (v != 0).any() and (cost[v == 0] >= 500).all()
 
 
+def test_a_kept_gear_is_the_cars_wherever_a_look_ahead_in_it_is_open(planner, layout):
+    pose = grid_poses(planner.grid, "cpu")[::97]
+    n = pose.shape[0]
+    slot = torch.arange(n) % layout.num_slots
+    for moving in (1.0, -1.0):
+        speed = torch.full((n,), moving * COARSE.speed)
+        free, _, _ = plan_control(planner, pose, speed, slot)
+        kept, _, _ = plan_control(planner, pose, speed, slot, torch.ones(n, dtype=torch.bool))
+        none, _, _ = plan_control(planner, pose, speed, slot, torch.zeros(n, dtype=torch.bool))
+        assert torch.equal(none, free)
+        other = (free * moving < 0) & (kept != 0)
+        assert other.any()  # rows where the greedy choice would change gear
+        # kept: the car's gear, unless every look-ahead in it is blocked (then the free one)
+        assert ((kept * moving > 0) | torch.eq(kept, free)).all()
+        assert (kept[other] * moving > 0).any()
+
+
+def test_gear_hold_counts_the_travel_since_the_last_change_of_gear():
+    hold = GearHold(1.0, 3, "cpu")
+    fresh, old = torch.tensor([True, True, True]), torch.zeros(3, dtype=torch.bool)
+    assert not hold.keep(torch.zeros(3), fresh, 0.5).any()  # nothing moved yet
+    # 2 m/s x 0.5 s = 1 m per step; row 1 goes 0.4 m per step, row 2 stands
+    speeds = torch.tensor([2.0, 0.8, 0.0])
+    assert hold.keep(speeds, old, 0.5).tolist() == [False, True, False]  # 1 m, 0.4 m: changed
+    assert hold.keep(speeds, old, 0.5).tolist() == [False, True, False]  # 2 m, 0.8 m
+    assert hold.keep(speeds, old, 0.5).tolist() == [False, False, False]  # 1.2 m
+    assert hold.keep(-speeds, old, 0.5).tolist() == [False, True, False]  # reversed: 1 m, 0.4
+    assert hold.keep(torch.zeros(3), old, 0.5).tolist() == [False, True, False]  # a stop
+    assert hold.keep(-speeds, old, 0.5).tolist() == [False, True, False]  # same gear: 0.8 m
+    assert not hold.keep(-speeds, torch.tensor([False, True, False]), 0.5)[1]  # a new episode
+
+
 @pytest.mark.parametrize("field, value", [("cell", 0.0), ("cell", math.nan), ("headings", 4),
                                           ("headings", True), ("steers", 1),
                                           ("reverse_cost", -1.0), ("margin", math.inf),
@@ -163,7 +196,8 @@ def test_plan_control_drives_at_the_planner_speed_with_its_angles(planner, layou
                                           ("control_step", 0.0), ("law_reach", 6.0),
                                           ("law_lateral", 0.4), ("law_heading", 4.0),
                                           ("law_heading", math.nan), ("law_reach", True),
-                                          ("law_lateral", math.inf)])
+                                          ("law_lateral", math.inf), ("gear_hold", -1.0),
+                                          ("gear_hold", math.inf)])
 def test_bad_planner_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=f"PlannerConfig.{field}"):
         PlannerConfig(**{field: value})

@@ -79,7 +79,7 @@ from torchpark.aids.step import AidedState, AidState, aided_control
 from torchpark.config import ParkingConfig, check_types, positive, require
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.experts import ExpertConfig, PlannerConfig
-from torchpark.experts.planner import lot_planner, plan_control
+from torchpark.experts.planner import GearHold, lot_planner, plan_control
 from torchpark.files import locked, save_torch, write_csv
 from torchpark.runner import run_episodes
 from torchpark.sim.geometry import wrap_angle
@@ -115,7 +115,9 @@ class DistillConfig:
     back to the goal from up to ``settle`` m past it
     (:attr:`~torchpark.aids.config.DockingConfig.settle`); ``retry``: only where the test
     can still pass, else it reverses ``retry`` m and drives in again
-    (:attr:`~torchpark.aids.config.DockingConfig.retry`); ``lr_decay``: each fit's learning
+    (:attr:`~torchpark.aids.config.DockingConfig.retry`); ``gear_hold``: the teacher's
+    planner keeps a new gear for that many metres (``PlannerConfig.gear_hold``, following
+    the car the student drives); ``lr_decay``: each fit's learning
     rate falls from ``lr`` to 0 along a cosine; ``epochs`` / ``dagger_epochs``: passes over
     the data after the first / each later iteration; ``width`` / ``depth``: the student's
     hidden layers (None: the teacher's sizes)."""
@@ -139,6 +141,7 @@ class DistillConfig:
     position: bool = False
     settle: float = 0.0
     retry: float = 0.0
+    gear_hold: float = 0.0
     width: int | None = None
     depth: int | None = None
     yardstick: int = 200
@@ -162,7 +165,7 @@ class DistillConfig:
         require(0.0 <= self.near_goal <= 1.0, "DistillConfig.near_goal", "in [0, 1]",
                 self.near_goal)
         require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
-        for name in ("settle", "retry"):
+        for name in ("settle", "retry", "gear_hold"):
             value = getattr(self, name)
             require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
                     value)
@@ -205,6 +208,7 @@ class Teacher:
         self.planner = lot_planner(config.lot, config.vehicle, self.expert.planner,
                                    str(self.base.device))
         self.angles = steer_angles(config, self.aids.brake or BrakeConfig(), self.base.device)
+        self.hold = GearHold(self.expert.planner.gear_hold, self.base.num_envs, self.base.device)
         self.state = AidState.zeros(self.base.num_envs, self.base.device)
         # (N,) bool: the brake stopped or steered the last label
         self.intervened = torch.zeros(self.base.num_envs, dtype=torch.bool,
@@ -217,8 +221,12 @@ class Teacher:
         funnel = in_funnel(error, law) | in_settle(error, law)
         self.state = self.state._replace(docking_engaged=funnel,
                                          docking_reverses=funnel & (sim.speed < 0))
+        keep = None
+        if self.hold.distance > 0:  # the gear the car (the student) moves in, held
+            step_time = self.base.config.vehicle.dt * self.base.action_repeat
+            keep = self.hold.keep(sim.speed, sim.steps == 0, step_time)
         action = torch.stack(plan_control(self.planner, sim.pose, sim.speed,
-                                          sim.goal_slot)[:2], -1)
+                                          sim.goal_slot, keep)[:2], -1)
         control = aided_control(AidedState(sim, self.state), action,
                                 self.base.world, self.angles, self.base.config, self.aids)
         self.state, self.intervened = control.aids, control.intervened
@@ -428,6 +436,8 @@ def run_state(out: Path, teacher_path: str, cfg: DistillConfig) -> dict:
         raise ValueError(f"--resume: {path} is not a distiller's state "
                          f"({type(err).__name__})") from None
     ours = dataclasses.asdict(cfg)
+    # A setting added since the run was saved holds its default there.
+    theirs = {**{f.name: f.default for f in dataclasses.fields(DistillConfig)}, **theirs}
     differs = sorted(k for k in set(ours) | set(theirs)
                      if k != "iterations" and ours.get(k) != theirs.get(k))
     if differs:
@@ -489,6 +499,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     # outside the env to the final-approach states.
     features = Compose(*[t.clone() for t in inputs[:-1]
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
+    planner = dataclasses.replace(planner or PlannerConfig(), gear_hold=cfg.gear_hold)
     teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, planner)
     actor, _ = build_models(scfg)
     high = base.action_spec.space.high[0]

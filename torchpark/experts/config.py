@@ -24,7 +24,10 @@ class PlannerConfig:
     the slot axis from the goal, within ``lateral`` m and ``heading`` rad of it. It drives at
     ``speed`` m/s, looking ahead two arcs of ``control_step`` m; a gear change costs
     ``switch_cost`` m; reading the cost between cells, one no path leaves counts
-    ``blocked_cost`` m dearer than the others. The docking law takes over from it within
+    ``blocked_cost`` m dearer than the others. After the car changes gear it keeps the new
+    one for ``gear_hold`` m of travel wherever a look-ahead in it is open (0: the greedy
+    choice at every step, which can cycle forwards and back at a lane's edge; see
+    :class:`~torchpark.experts.planner.GearHold`). The docking law takes over from it within
     ``law_reach`` m behind the goal, ``law_lateral`` m of the slot axis and ``law_heading``
     rad of the goal's heading (:meth:`law_funnel`; None: the target's bound); a funnel
     wider than the target hands over to the law where the planner's arcs would circle a
@@ -50,6 +53,7 @@ class PlannerConfig:
     law_reach: float | None = None  # m
     law_lateral: float | None = None  # m
     law_heading: float | None = None  # rad
+    gear_hold: float = 0.0  # m
 
     def __post_init__(self) -> None:
         check_types(self)
@@ -65,7 +69,7 @@ class PlannerConfig:
         require(2 <= self.steers <= 64, "PlannerConfig.steers", "an int in [2, 64]",
                 self.steers)
         for name in ("reverse_cost", "switch_cost", "clearance", "margin", "band_cost",
-                     "blocked_cost", "reach_min"):
+                     "blocked_cost", "reach_min", "gear_hold"):
             value = getattr(self, name)
             require(math.isfinite(value) and value >= 0, f"PlannerConfig.{name}",
                     "finite, >= 0", value)

@@ -257,8 +257,8 @@ def interpolated_cost(value: Tensor, row: Tensor, pose: Tensor, grid: Grid,
     return torch.where(finite.any(-1), (weight * cost).sum(-1), UNREACHABLE)
 
 
-def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tensor
-                 ) -> tuple[Tensor, Tensor, Tensor]:
+def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tensor,
+                 keep_gear: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
     """The planner's control at poses (N, 3) moving at ``speed`` (N,) m/s towards slots
     ``goal_slot`` (N,): (v m/s, delta rad, cost-to-go m), each (N,). Of the sequences of
     two arcs of ``cfg.control_step`` m from the exact pose, the one whose end has the least
@@ -267,7 +267,9 @@ def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tenso
     :func:`clear_of_slots`; plus ``switch_cost`` for each change of gear, the first against
     the way the car moves), among those whose two ends keep the car off the walls, gives
     the first arc's gear and steering; v is ``speed`` in that gear, 0 where every sequence
-    is blocked or ends among cells no path leaves."""
+    is blocked or ends among cells no path leaves. Rows of ``keep_gear`` (N,) bool
+    (:class:`GearHold`) choose among the sequences whose first arc is in the gear the car
+    moves in, where one of them is open."""
     prim, cfg = planner.control, planner.cfg
     gear = torch.sign(prim.travel)
     first = arcs(pose, prim.travel, prim.curvature)  # (N, K, 3)
@@ -288,11 +290,44 @@ def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tenso
     own_second = prim.cost * torch.where(off_second, 1.0, cfg.slot_cost)  # (N, K, K)
     total = ahead + again + own_second + (own_first + switch)[:, :, None]
     total = torch.where(walled_first[:, :, None] & walled_second, total, math.inf)
+    if keep_gear is not None:
+        kept = torch.where(((gear == moving) | (moving == 0))[:, :, None], total, math.inf)
+        open_kept = kept.flatten(1).amin(-1) < 0.5 * UNREACHABLE
+        total = torch.where((keep_gear & open_kept)[:, None, None], kept, total)
     best, index = total.flatten(1).min(-1)
     index = index // k
     reachable = best < 0.5 * UNREACHABLE  # also False where every sequence is blocked
     v = torch.where(reachable, gear[index] * cfg.speed, 0.0)
     return v, prim.steer[index], best
+
+
+class GearHold:
+    """The planner's commitment to a change of gear (``PlannerConfig.gear_hold``): per env,
+    the car's gear (the sign of its speed) and its travel since it last changed, m. A row
+    keeps its gear (``plan_control(..., keep_gear)``) until it has travelled ``distance`` m
+    in it. The greedy control alone reads the tables between cells while the exact checks
+    refuse some of their moves, and at a lane's edge it can go two steps forwards and two
+    back for ever (research/experiments.md); a held gear leaves such a cycle.
+
+    It follows the car, not the commands: what another driver (a student under DAgger) or
+    the brake did counts."""
+
+    def __init__(self, distance: float, num_envs: int, device: torch.device | str) -> None:
+        self.distance = distance
+        self.gear = torch.zeros(num_envs, device=device)
+        self.travel = torch.full((num_envs,), math.inf, device=device)
+
+    def keep(self, speed: Tensor, fresh: Tensor, step_time: float) -> Tensor:
+        """The rows (N,) bool to keep their gear, given each car's ``speed`` (N,) m/s over
+        the last step of ``step_time`` s and ``fresh`` (N,) bool, the rows whose episode has
+        just begun (no step taken)."""
+        gear = torch.sign(speed)
+        moved = speed.abs() * step_time
+        changed = (gear != 0) & (gear != self.gear)
+        self.travel = torch.where(fresh, math.inf,
+                                  torch.where(changed, moved, self.travel + moved))
+        self.gear = torch.where(fresh, 0.0, torch.where(gear != 0, gear, self.gear))
+        return self.travel < self.distance
 
 
 @functools.lru_cache(maxsize=4)
@@ -322,8 +357,13 @@ class PlannerExpert:
         self.env = base
         self.planner = lot_planner(base.config.lot, base.config.vehicle, self.config.planner,
                                    str(base.device))
+        self.hold = GearHold(self.config.planner.gear_hold, base.num_envs, base.device)
 
     def __call__(self, td: TensorDictBase) -> TensorDictBase:
         state = self.env.state
-        v, delta, _ = plan_control(self.planner, state.pose, state.speed, state.goal_slot)
+        keep = None
+        if self.hold.distance > 0:
+            step_time = self.env.config.vehicle.dt * self.env.action_repeat
+            keep = self.hold.keep(state.speed, state.steps == 0, step_time)
+        v, delta, _ = plan_control(self.planner, state.pose, state.speed, state.goal_slot, keep)
         return td.set("action", torch.stack((v, delta), -1))
