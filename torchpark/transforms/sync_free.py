@@ -26,8 +26,8 @@ from torchrl.envs import RewardScaling, TransformedEnv, VecNormV2
 class SyncFreeEnv(TransformedEnv):
     """``TransformedEnv`` whose ``step_and_maybe_reset`` (the collectors' and rollouts' path)
     reads nothing back when its base env is a ``ParkingEnv(reset_in_step=True)``; with any
-    other base env it is torchrl's generic path. The read
-    left is the base env's own: its ring counters, once every ``blocks_ahead`` steps."""
+    other base env it is torchrl's generic path. The one read left is the base env's own:
+    its ring counters, once every ``blocks_ahead`` steps."""
 
     def _step_and_maybe_reset(self, tensordict: TensorDictBase
                               ) -> tuple[TensorDictBase, TensorDictBase]:
