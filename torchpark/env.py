@@ -63,6 +63,7 @@ from torchpark.sim.observation import observation_dim, observe
 from torchpark.sim.ring import END_FLAGS, Counters, guarded_step, reset_rows, step_and_reset
 from torchpark.sim.step import ParkingState, put_rows_, take_rows
 from torchpark.sim.world import World, build_world
+from torchpark.transforms.sync_free import merge_reset
 
 # torch.compile keeps the graphs of every compiled partial function in the cache of one
 # wrapper code object, 8 by default: with three per env, the third compiled env of a process
@@ -747,16 +748,12 @@ class ParkingEnv(EnvBase):
                         ) -> tuple[TensorDictBase, TensorDictBase]:
         """:meth:`_step_and_maybe_reset` with ``reset_in_step``: torchrl's step, whose
         :meth:`_step` runs the step and the reset of its ended rows as one function and keeps
-        what the reset returns; then the same merge as the host path, with the padding of the
-        other keys as a mask on the device (done rows, unless every row is done)."""
+        what the reset returns; then torchrl's merge of the reset, as a ``where`` on the device
+        (:func:`~torchpark.transforms.sync_free.merge_reset`, also the merge of a
+        ``SyncFreeEnv`` around this env)."""
         tensordict, after = self.step_resetting(self.step, tensordict)
-        tensordict_ = self._step_mdp(tensordict)
         done = tensordict.get(("next", "done")).reshape(self.batch_size)
-        others = tensordict_.exclude(*after.keys())
-        tensordict_.update(after)
-        if not others.is_empty():  # torchrl pads partial resets only
-            tensordict_.update(others.masked_fill(done & ~done.all(), 0))
-        return tensordict, tensordict_
+        return tensordict, merge_reset(self._step_mdp(tensordict), after, done)
 
     def step_resetting(self, step: Callable[[TensorDictBase], TensorDictBase],
                        tensordict: TensorDictBase) -> tuple[TensorDictBase, TensorDictBase]:

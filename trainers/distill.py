@@ -221,12 +221,9 @@ class Teacher:
         funnel = in_funnel(error, law) | in_settle(error, law)
         self.state = self.state._replace(docking_engaged=funnel,
                                          docking_reverses=funnel & (sim.speed < 0))
-        keep = None
-        if self.hold.distance > 0:  # the gear the car (the student) moves in, held
-            step_time = self.base.config.vehicle.dt * self.base.action_repeat
-            keep = self.hold.keep(sim.speed, sim.steps == 0, step_time)
-        action = torch.stack(plan_control(self.planner, sim.pose, sim.speed,
-                                          sim.goal_slot, keep)[:2], -1)
+        # the gear the car (the student) moves in, held
+        action = torch.stack(plan_control(self.planner, sim.pose, sim.speed, sim.goal_slot,
+                                          self.hold.keep_in(sim, self.base))[:2], -1)
         control = aided_control(AidedState(sim, self.state), action,
                                 self.base.world, self.angles, self.base.config, self.aids)
         self.state, self.intervened = control.aids, control.intervened

@@ -39,6 +39,7 @@ from torchpark.config import LotConfig, VehicleConfig
 from torchpark.experts.config import ExpertConfig, PlannerConfig
 from torchpark.sim.geometry import OrientedBoxes, oriented_boxes, separation, wrap_angle
 from torchpark.sim.layout import LotLayout, build_layout
+from torchpark.sim.step import ParkingState
 from torchpark.sim.vehicle import vehicle_obb
 
 
@@ -329,6 +330,15 @@ class GearHold:
         self.gear = torch.where(fresh, 0.0, torch.where(gear != 0, gear, self.gear))
         return self.travel < self.distance
 
+    def keep_in(self, state: ParkingState, env) -> Tensor | None:
+        """:meth:`keep` for the cars in ``state``, ``env``'s (a ParkingEnv, stepping
+        ``action_repeat`` steps of dt per action) before its next action; None when there is
+        no hold (``distance`` 0: ``plan_control``'s greedy choice)."""
+        if self.distance == 0:
+            return None
+        return self.keep(state.speed, state.steps == 0,
+                         env.config.vehicle.dt * env.action_repeat)
+
 
 @functools.lru_cache(maxsize=4)
 def lot_planner(lot: LotConfig, vehicle: VehicleConfig, cfg: PlannerConfig, device: str
@@ -361,9 +371,6 @@ class PlannerExpert:
 
     def __call__(self, td: TensorDictBase) -> TensorDictBase:
         state = self.env.state
-        keep = None
-        if self.hold.distance > 0:
-            step_time = self.env.config.vehicle.dt * self.env.action_repeat
-            keep = self.hold.keep(state.speed, state.steps == 0, step_time)
-        v, delta, _ = plan_control(self.planner, state.pose, state.speed, state.goal_slot, keep)
+        v, delta, _ = plan_control(self.planner, state.pose, state.speed, state.goal_slot,
+                                   self.hold.keep_in(state, self.env))
         return td.set("action", torch.stack((v, delta), -1))
