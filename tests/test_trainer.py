@@ -506,6 +506,7 @@ def test_action_repeat_must_divide_the_batch():
     ("env.device=meta", "env.device"),
     ("agent.goal_features=2", "agent.goal_features must be true or false"),
     ("agent.aids.observe_position=2", "agent.aids.observe_position must be true or false"),
+    ("env.reset_in_step=2", "env.reset_in_step must be true, false or null"),
     ("model.init_log_std=100", "model.init_log_std must be a number in [-20, 2]"),
     ("seed=4294967296", "seed must be an int in [0, 2**32)"),
 ])

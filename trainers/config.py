@@ -240,8 +240,8 @@ def override(cfg: TrainConfig, overrides: list[str]) -> TrainConfig:
 
 def check_flags(values: dict, schema: type = TrainConfig, prefix: str = "") -> None:
     """ValueError naming the field where ``values`` (a nested dict of a TrainConfig's fields)
-    gives a bool field anything but true or false: OmegaConf would turn 2, "yes" or "on"
-    into True, which torchpark's own configs refuse."""
+    gives a bool field anything but true or false (an optional one: or null): OmegaConf would
+    turn 2, "yes" or "on" into True, which torchpark's own configs refuse."""
     hints = typing.get_type_hints(schema)
     for key, value in values.items():
         kind = hints.get(key)
@@ -250,6 +250,9 @@ def check_flags(values: dict, schema: type = TrainConfig, prefix: str = "") -> N
             check_flags(value, nested[0], f"{prefix}{key}.")
         elif kind is bool and not isinstance(value, bool):
             raise ValueError(f"{prefix}{key} must be true or false, got {value!r}")
+        elif set(typing.get_args(kind)) == {bool, type(None)} and not (
+                value is None or isinstance(value, bool)):
+            raise ValueError(f"{prefix}{key} must be true, false or null, got {value!r}")
 
 
 def env_configs(cfg: TrainConfig, training: bool) -> tuple[ParkingConfig, AidsConfig | None]:
