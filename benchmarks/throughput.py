@@ -19,6 +19,9 @@ cudagraphs: compiled with ``mode="reduce-overhead"``, CUDA only):
   occupancy 0.5, batches of N x ``--horizon``
   env steps: **frames/s** (steps of dt, 5 per env step, as the trainer's
   ``time/collect_fps``);
+- kernel: the minimal kernel of :mod:`benchmarks.kernel` (the same step, bit for bit, as the
+  fastest torch code found, with no TensorDict, check, aid or reset: the floor), on the
+  env's lots, going on from the last call; the step's ratio to it;
 - reset: ``ParkingEnv._reset`` of a share of the rows (0.1 %, 1 %, 10 %, 100 %), ms per
   call and its ratio to one raw step, over enough calls to include the batched draws of
   the episodes handed out (their share of the cost).
@@ -40,6 +43,7 @@ import platform
 import time
 import warnings
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -51,7 +55,7 @@ from tests.reference import ReferenceParkingEnv  # run from the repository root 
 from torchpark import ParkingEnv
 
 MODES = {"eager": None, "compiled": {}, "cudagraphs": {"mode": "reduce-overhead"}}
-PATHS = ("step", "step_and_maybe_reset", "rollout", "collector", "reset")
+PATHS = ("step", "step_and_maybe_reset", "rollout", "kernel", "collector", "reset")
 RESET_SHARES = (0.001, 0.01, 0.1, 1.0)
 
 
@@ -115,6 +119,28 @@ def rollout_call(env: ParkingEnv, args) -> Callable[[], None]:
     return call
 
 
+def kernel_call(env: ParkingEnv, args) -> Callable[[], None]:
+    """One step of the minimal kernel (:mod:`benchmarks.kernel`) on the env's lots, going on
+    from the last one's state; compiled with the kernel's inductor options where the env is
+    compiled (without CUDA graphs in every compiled mode)."""
+    from benchmarks.kernel import OPTIONS, KernelState, columns, kernel_step
+
+    env.reset()
+    sim = env.state
+    state = KernelState(sim.pose, sim.goal, sim.steps, sim.present.t().contiguous())
+    step = partial(kernel_step, boxes=columns(env.world.obstacles), world=env.world,
+                   cfg=env.config)
+    if env.compiled:
+        step = torch.compile(step, fullgraph=True, options=OPTIONS)
+    action = random_actions(env.num_envs, env.device, 1)[0]
+
+    def call() -> None:
+        nonlocal state
+        state = step(state, action)[0]
+
+    return call
+
+
 def reset_call(share: float) -> Callable[[ParkingEnv, argparse.Namespace], Callable[[], None]]:
     """A reset of round(share x N) rows (at least one), the same rows each call."""
 
@@ -169,7 +195,7 @@ def collector_frames(num_envs: int, device: str, mode: str, args):
 
 
 CALLS = {"step": step_call, "step_and_maybe_reset": step_and_maybe_reset_call,
-         "rollout": rollout_call,
+         "rollout": rollout_call, "kernel": kernel_call,
          **{f"reset {share:g}": reset_call(share) for share in RESET_SHARES}}
 
 
@@ -336,6 +362,10 @@ def tables(n: int, mode: str, results: dict[str, dict[str, float]], reference: f
     paths = [p for p in ("step", "step_and_maybe_reset", "rollout") if p in results]
     cells = [f"{cell(results[p])} ({ratio(p)})" if p != "step" else cell(results[p])
              for p in paths]
+    if "kernel" in results:
+        kernel = results["kernel"]
+        cells.append(f"{cell(kernel)} ({step['rate'] / kernel['rate']:.2f})"
+                     if "rate" in kernel and "rate" in step else cell(kernel))
     if "collector" in results:
         cells.append(cell(results["collector"]))
     cells.append(f"{step['rate'] / reference:,.0f}x" if "rate" in step else "-")
@@ -393,6 +423,8 @@ def main() -> None:
     print(f"best of {args.repeats} measurements, the worst in brackets\n")
     shown = [p for p in ("step", "step_and_maybe_reset", "rollout") if p in args.paths]
     columns = [f"{p} env-steps/s" + ("" if p == "step" else " (/ step)") for p in shown]
+    if "kernel" in args.paths:
+        columns.append("kernel env-steps/s (step / kernel)")
     if "collector" in args.paths:
         columns.append("collector (fast preset) frames/s")
     head = ("| N | mode | " + " | ".join([*columns, "step / reference"]) + " |"
