@@ -8,7 +8,8 @@ drives the paper's env with nothing around it.
                                              [--seed 0] [--overwrite] [--clearance-features]
                                              [--position] [--settle 0.05] [--retry 1]
                                              [--lr-decay] [--width 512] [--depth 3]
-                                             [--resume]
+                                             [--gear-hold 0.75] [--target-lateral 0.25]
+                                             [--target-heading 0.12] [--resume]
 
 TEACHER is a hybrid checkpoint (``results/fast/checkpoint_final.pt``): its docking law and
 brake join the approach planner in the expert (:class:`Teacher`), its network sizes are the
