@@ -37,7 +37,6 @@ from trainers.distill import (
     imitation_error,
     main,
     student_config,
-    teacher_planner,
 )
 from trainers.evaluate import checkpoint_agent
 from trainers.utils import (
@@ -196,9 +195,6 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("settle", -0.01), ("settle", float("nan")),
                                           ("retry", -1.0), ("retry", float("inf")),
                                           ("gear_hold", -0.5), ("gear_hold", float("nan")),
-                                          ("target_lateral", 0.0),
-                                          ("target_lateral", float("inf")),
-                                          ("target_heading", -0.1), ("target_heading", 4.0),
                                           ("width", 0), ("width", True), ("depth", 9),
                                           ("depth", 2.0)])
 def test_bad_settings_are_refused_by_name(field, value):
@@ -417,16 +413,6 @@ def test_a_run_saved_before_a_setting_existed_resumes_at_its_default(teacher_pat
         main([teacher_path, "--out", str(out), "--iterations", "3", "--resume",
               "--gear-hold", "0.5", *flags])
     assert "has gear_hold=0.0, this command gear_hold=0.5" in capsys.readouterr().err
-
-
-def test_the_teachers_planner_takes_the_runs_hold_and_target():
-    assert teacher_planner(DistillConfig()) == PlannerConfig()
-    tight = DistillConfig(gear_hold=0.75, target_lateral=0.25, target_heading=0.12)
-    assert teacher_planner(tight) == PlannerConfig(gear_hold=0.75, lateral=0.25, heading=0.12)
-    assert teacher_planner(tight, COARSE_PLAN) == dataclasses.replace(
-        COARSE_PLAN, gear_hold=0.75, lateral=0.25, heading=0.12)
-    assert teacher_planner(DistillConfig(target_heading=0.1), COARSE_PLAN).lateral \
-        == COARSE_PLAN.lateral
 
 
 def test_the_teachers_gear_hold_follows_the_car(teacher_path):
