@@ -37,6 +37,7 @@ from trainers.distill import (
     imitation_error,
     main,
     student_config,
+    teacher_planner,
 )
 from trainers.evaluate import checkpoint_agent
 from trainers.utils import (
@@ -195,6 +196,9 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("settle", -0.01), ("settle", float("nan")),
                                           ("retry", -1.0), ("retry", float("inf")),
                                           ("gear_hold", -0.5), ("gear_hold", float("nan")),
+                                          ("target_lateral", 0.0),
+                                          ("target_lateral", float("inf")),
+                                          ("target_heading", -0.1), ("target_heading", 4.0),
                                           ("width", 0), ("width", True), ("depth", 9),
                                           ("depth", 2.0)])
 def test_bad_settings_are_refused_by_name(field, value):
@@ -261,6 +265,28 @@ def test_a_student_with_the_clearance_features_and_position_reads_them_everywher
         "distilled (gear head, clearance features, position) from")
     loc = checkpoint["obs_norm"]["_extra_state"]["loc.-|-.observation_policy"]
     assert loc.shape[-1] == 23 + 7 + 16 + 2
+    agent = load_agent(str(out / "checkpoint_final.pt"))
+    agent.make_env(2, 0.9, seed=0).rollout(3, agent.policy)
+
+
+def test_a_student_with_the_gear_features_reads_them_everywhere(teacher_path, tmp_path,
+                                                                coarse_planner):
+    """The gear and its travel join the student's input (after the clearance, before the
+    position) in its rollouts, its final-approach states and the evaluator's env alike."""
+    out = tmp_path / "gear"
+    main([teacher_path, "--out", str(out), "--iterations", "2", "--envs", "4", "--steps",
+          "5", "--epochs", "1", "--dagger-epochs", "1", "--yardstick", "2", "--approach",
+          "8", "--clearance-features", "--gear-features", "--position", "--gear-hold",
+          "0.5"])
+    cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
+    assert cfg.agent.gear_features
+    assert checkpoint["trained_by"].startswith(
+        "distilled (gear head, clearance features, gear features, position) from")
+    data = torch.load(out / "dagger_data" / "iteration_001.pt")
+    assert data[0].shape[-1] == 23 + 7 + 16 + 2 + 2
+    gear, travel = data[0][:, -4], data[0][:, -3]
+    assert set(gear.unique().tolist()) <= {-1.0, 0.0, 1.0}
+    assert bool(((travel >= 0) & (travel <= 1)).all()) and bool((travel < 1).any())
     agent = load_agent(str(out / "checkpoint_final.pt"))
     agent.make_env(2, 0.9, seed=0).rollout(3, agent.policy)
 
@@ -413,6 +439,16 @@ def test_a_run_saved_before_a_setting_existed_resumes_at_its_default(teacher_pat
         main([teacher_path, "--out", str(out), "--iterations", "3", "--resume",
               "--gear-hold", "0.5", *flags])
     assert "has gear_hold=0.0, this command gear_hold=0.5" in capsys.readouterr().err
+
+
+def test_the_teachers_planner_takes_the_runs_hold_and_target():
+    assert teacher_planner(DistillConfig()) == PlannerConfig()
+    tight = DistillConfig(gear_hold=0.75, target_lateral=0.25, target_heading=0.12)
+    assert teacher_planner(tight) == PlannerConfig(gear_hold=0.75, lateral=0.25, heading=0.12)
+    assert teacher_planner(tight, COARSE_PLAN) == dataclasses.replace(
+        COARSE_PLAN, gear_hold=0.75, lateral=0.25, heading=0.12)
+    assert teacher_planner(DistillConfig(target_heading=0.1), COARSE_PLAN).lateral \
+        == COARSE_PLAN.lateral
 
 
 def test_the_teachers_gear_hold_follows_the_car(teacher_path):

@@ -1,6 +1,7 @@
-"""Policy features: the goal in the vehicle's frame (geometry by hand) and the rays'
-clearance (against a ray cast from outside the box, and the env's own collisions); the
-transforms' specs and keys."""
+"""Policy features: the goal in the vehicle's frame (geometry by hand), the rays'
+clearance (against a ray cast from outside the box, and the env's own collisions), the gear
+and its travel (against the planner's gear hold following the same cars); the transforms'
+specs and keys."""
 
 from __future__ import annotations
 
@@ -9,12 +10,22 @@ import math
 import numpy as np
 import pytest
 import torch
+from tensordict import TensorDict
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
 from tests.reference import _corners, _ray_hit
-from torchpark import ClearanceFeatures, GoalFrameFeatures, ParkingConfig, ParkingEnv
+from torchpark import (
+    ClearanceFeatures,
+    GearTravelFeatures,
+    GoalFrameFeatures,
+    ParkingConfig,
+    ParkingEnv,
+)
+from torchpark.experts.planner import GearHold
+from torchpark.sim.vehicle import gear_travel
 from torchpark.transforms.features import box_edge_distance, goal_in_vehicle_frame
+from torchpark.transforms.sync_free import SyncFreeEnv
 
 
 def observation(dx, dy, psi, alpha) -> torch.Tensor:
@@ -104,3 +115,60 @@ def test_bad_clearance_arguments_are_errors():
         ClearanceFeatures(ParkingConfig(), precision=float("nan"))
     with pytest.raises(ValueError, match=">= 23 features"):
         ClearanceFeatures(ParkingConfig())._apply_transform(torch.zeros(3, 20))
+
+
+def test_gear_travel_restarts_on_a_change_and_keeps_the_gear_at_a_standstill():
+    gear, travel = torch.zeros(1), torch.full((1,), math.inf)
+    seen = []
+    for speed in (2.0, 2.0, 0.0, 1.0, -1.0, -0.5, 0.0, 3.0):
+        gear, travel = gear_travel(torch.tensor([speed]), gear, travel, 0.1)
+        seen.append((gear.item(), round(travel.item(), 6)))
+    assert seen == [(1.0, 0.2), (1.0, 0.4), (1.0, 0.4), (1.0, 0.5), (-1.0, 0.1), (-1.0, 0.15),
+                    (-1.0, 0.15), (1.0, 0.3)]
+
+
+@pytest.mark.parametrize("sync_free", [False, True])
+def test_gear_features_count_what_the_planners_hold_counts(sync_free):
+    """Random driving with episodes ending (collisions, partial resets through
+    step_and_maybe_reset; torchrl's path, and the trainer's SyncFreeEnv with the reset in
+    the step): after every step the features hold the gear and the travel (to the cap) that
+    the teacher's gear hold, following the same cars, counts before the next action; a new
+    episode starts with no gear and the full travel."""
+    n, cap = 64, 2.0
+    env = ParkingEnv(n, seed=3, reset_in_step=sync_free)
+    env.occupancy = 0.9
+    features = GearTravelFeatures(env.config.vehicle.dt, cap=cap)
+    tenv = (SyncFreeEnv if sync_free else TransformedEnv)(env, features)
+    hold = GearHold(1.0, n, "cpu")
+    generator = torch.Generator().manual_seed(0)
+    td = tenv.reset()
+    assert torch.equal(td["observation_policy"][:, -2:],
+                       torch.tensor([[0.0, 1.0]]).expand(n, 2))
+    ends = 0
+    for _ in range(60):
+        hold.keep_in(env.state, env)
+        expected = torch.stack([hold.gear, hold.travel.clamp(max=cap) / cap], -1)
+        assert torch.allclose(td["observation_policy"][:, -2:], expected, atol=1e-6)
+        assert torch.equal(td["observation_policy"][:, :-2], td["observation"])
+        action = (torch.rand(n, 2, generator=generator) * 2 - 1) * torch.tensor([5.0, 0.785])
+        action[:8, 0] = 0.0  # standing still keeps the gear
+        td["action"] = action
+        td, td = tenv.step_and_maybe_reset(td)
+        ends += int(env.state.steps.eq(0).sum())
+    assert ends > 0  # some rows were reset along the way
+
+
+def test_gear_features_without_history_and_bad_arguments():
+    obs = torch.zeros(3, 23)
+    obs[:, 4] = torch.tensor([-1.5, 0.0, 2.0])
+    out = GearTravelFeatures(0.1, cap=1.5)(TensorDict({"observation": obs}, [3]))
+    assert torch.equal(out["observation_policy"][:, -2:],
+                       torch.tensor([[-1.0, 1.0], [0.0, 1.0], [1.0, 1.0]]))
+    for kwargs, name in (({"step_time": 0.0}, "step_time"), ({"step_time": 0.1, "cap": 0.0},
+                                                               "cap"),
+                         ({"step_time": 0.1, "cap": math.inf}, "cap")):
+        with pytest.raises(ValueError, match=name):
+            GearTravelFeatures(**kwargs)
+    env = TransformedEnv(ParkingEnv(2, seed=0), GearTravelFeatures(0.1))
+    with pytest.raises(RuntimeError, match="reset"):
+        env.transform._step(TensorDict({}, [2]), env.base_env.reset())

@@ -411,7 +411,7 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     """Every training option off the paper's path at once: held actions, the cubic speed map,
     near-goal starts, the emergency brake, a state-dependent std, a training success
     threshold, the docking layer, the brake steering clear with a margin and the policy
-    seeing it, the gear head."""
+    seeing it, the gear head and the gear features."""
     cfg = load_config("smoke", [
         f"logger.log_dir={tmp_path}", "agent.aids.action_repeat=2",
         "agent.action_exponents=[3.0,1.0]", "agent.aids.near_goal_starts.probability=0.5",
@@ -420,7 +420,7 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
         "collector.total_frames=4096", "env.task.reward.success_threshold=1000.0",
         "agent.aids.brake.penalty=-1.0", "agent.aids.docking.lateral=1.0",
         "agent.aids.brake.steer_clear=5", "agent.observe_brake=true",
-        "agent.gear_head=true", "agent.aids.brake.margin=0.2",
+        "agent.gear_head=true", "agent.aids.brake.margin=0.2", "agent.gear_features=true",
     ])
     assert env_configs(cfg, True)[1].brake.margin == env_configs(cfg, False)[1].brake.margin \
         == 0.2

@@ -18,7 +18,11 @@ from torchpark.curriculum import OccupancyCurriculum
 from torchpark.env import ParkingEnv
 from torchpark.gym_env import ENV_ID, ParkingGymEnv, ParkingVectorEnv, register
 from torchpark.transforms.actions import GearActionMap, PowerActionMap
-from torchpark.transforms.features import ClearanceFeatures, GoalFrameFeatures
+from torchpark.transforms.features import (
+    ClearanceFeatures,
+    GearTravelFeatures,
+    GoalFrameFeatures,
+)
 
 register()  # gymnasium.make("torchpark/Parking-v0")
 
@@ -29,6 +33,7 @@ __all__ = [
     "ClearanceFeatures",
     "DockingConfig",
     "GearActionMap",
+    "GearTravelFeatures",
     "GoalFrameFeatures",
     "LidarConfig",
     "LotConfig",

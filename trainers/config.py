@@ -66,6 +66,10 @@ class AgentConfig:
     # Append the gap left along each LIDAR ray past the car's own box, on a log-like scale
     # (torchpark.ClearanceFeatures) to the policy's input.
     clearance_features: bool = False
+    # Append the gear the car last moved in and its travel in it since it changed, counted
+    # from the observed speed over the episode (torchpark.GearTravelFeatures): what a
+    # teacher's gear hold decides by.
+    gear_features: bool = False
     # Append the env's braked flag (the brake stopped the last step) to the policy's input:
     # a deterministic policy that pushes into a parked car sees that it was stopped.
     observe_brake: bool = False

@@ -8,7 +8,9 @@ drives the paper's env with nothing around it.
                                              [--seed 0] [--overwrite] [--clearance-features]
                                              [--position] [--settle 0.05] [--retry 1]
                                              [--lr-decay] [--width 512] [--depth 3]
-                                             [--resume]
+                                             [--gear-hold 0.75] [--gear-features]
+                                             [--target-lateral 0.25]
+                                             [--target-heading 0.12] [--resume]
 
 TEACHER is a hybrid checkpoint (``results/fast/checkpoint_final.pt``): its docking law and
 brake join the approach planner in the expert (:class:`Teacher`), its network sizes are the
@@ -36,7 +38,9 @@ to the label's gear and, for that gear's pair only, to the label.
 
 The student reads the paper's observation and its goal-frame features, normalised (with
 ``--clearance-features`` the gap along each ray; with ``--position`` the rear axle's (x, y)
-in the lot, which the planner's route depends on and the paper's observation lacks) and
+in the lot, which the planner's route depends on and the paper's observation lacks; with
+``--gear-features`` the gear the car last moved in and its travel in it, counted from the
+observed speed, which a teacher's ``--gear-hold`` decides by) and
 acts at every step of dt: no brake, no law, no held actions.
 
 Written into ``--out``: ``checkpoint_final.pt`` (``python -m trainers.evaluate
@@ -61,6 +65,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import hashlib
+import math
 import time
 import typing
 from dataclasses import dataclass
@@ -117,7 +122,13 @@ class DistillConfig:
     can still pass, else it reverses ``retry`` m and drives in again
     (:attr:`~torchpark.aids.config.DockingConfig.retry`); ``gear_hold``: the teacher's
     planner keeps a new gear for that many metres (``PlannerConfig.gear_hold``, following
-    the car the student drives); ``lr_decay``: each fit's learning
+    the car the student drives); ``gear_features``: the student also reads the gear and its
+    travel in it (torchpark.GearTravelFeatures), so a held gear's labels are a function of
+    its input; ``target_lateral`` / ``target_heading``: the planner's
+    target, where the law takes over, within that many metres of the slot axis and radians
+    of the goal's heading (``PlannerConfig.lateral`` / ``heading``; None: the planner's
+    default; a tight target leaves the law little to turn, so the brake seldom acts);
+    ``lr_decay``: each fit's learning
     rate falls from ``lr`` to 0 along a cosine; ``epochs`` / ``dagger_epochs``: passes over
     the data after the first / each later iteration; ``width`` / ``depth``: the student's
     hidden layers (None: the teacher's sizes)."""
@@ -142,6 +153,9 @@ class DistillConfig:
     settle: float = 0.0
     retry: float = 0.0
     gear_hold: float = 0.0
+    gear_features: bool = False
+    target_lateral: float | None = None
+    target_heading: float | None = None
     width: int | None = None
     depth: int | None = None
     yardstick: int = 200
@@ -168,6 +182,12 @@ class DistillConfig:
         for name in ("settle", "retry", "gear_hold"):
             value = getattr(self, name)
             require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
+                    value)
+        for name, (high, unit) in (("target_lateral", (math.inf, "m")),
+                                   ("target_heading", (math.pi, "rad"))):
+            value = getattr(self, name)
+            require(value is None or (math.isfinite(value) and 0.0 < value <= high),
+                    f"DistillConfig.{name}", f"None or finite, in (0, {high:g}] ({unit})",
                     value)
         for name, high in (("width", 4096), ("depth", 8)):
             value = getattr(self, name)
@@ -250,7 +270,8 @@ def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
             aids=AidsConfig(observe_position=cfg.position, near_goal_starts=NearGoalStarts(
                 probability=cfg.near_goal) if cfg.near_goal > 0 else None),
             action_exponents=[cfg.speed_exponent, cfg.steer_exponent], gear_head=True,
-            goal_features=True, clearance_features=cfg.clearance_features),
+            goal_features=True, clearance_features=cfg.clearance_features,
+            gear_features=cfg.gear_features),
         model=dataclasses.replace(tcfg.model, hidden=hidden),
         logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
     return student
@@ -475,6 +496,16 @@ def data_path(out: Path, iteration: int) -> Path:
     return out / DATA / f"iteration_{iteration:03d}.pt"
 
 
+def teacher_planner(cfg: DistillConfig, planner: PlannerConfig | None = None
+                    ) -> PlannerConfig:
+    """The teacher's planner: ``planner`` (default :class:`PlannerConfig`) with the run's gear
+    hold and, where set, its target's lateral and heading bounds."""
+    target = {name: value for name, value in (("lateral", cfg.target_lateral),
+                                              ("heading", cfg.target_heading))
+              if value is not None}
+    return dataclasses.replace(planner or PlannerConfig(), gear_hold=cfg.gear_hold, **target)
+
+
 def distill(teacher_path: str, out: Path, cfg: DistillConfig,
             planner: PlannerConfig | None = None, resume: bool = False) -> Path:
     """Run DAgger; returns the final checkpoint's path. ``planner``: the teacher's
@@ -496,8 +527,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     # outside the env to the final-approach states.
     features = Compose(*[t.clone() for t in inputs[:-1]
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
-    planner = dataclasses.replace(planner or PlannerConfig(), gear_hold=cfg.gear_hold)
-    teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, planner)
+    teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, teacher_planner(cfg, planner))
     actor, _ = build_models(scfg)
     high = base.action_spec.space.high[0]
     exponents = torch.tensor([cfg.speed_exponent, cfg.steer_exponent], device=base.device)
@@ -521,6 +551,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
               f"frames)", flush=True)
     parts = [name for name, on in (("gear head", True),
                                    ("clearance features", cfg.clearance_features),
+                                   ("gear features", cfg.gear_features),
                                    ("position", cfg.position)) if on]
     made_of = f" ({', '.join(parts)})" if parts else ""
     source = f"the approach planner with the aids of {teacher_path}"

@@ -30,6 +30,7 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchpark import (
     ClearanceFeatures,
     GearActionMap,
+    GearTravelFeatures,
     GoalFrameFeatures,
     OccupancyCurriculum,
     ParkingEnv,
@@ -177,8 +178,8 @@ NORM_DECAY = 0.9999
 def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[Transform]:
     """The transforms between the env and the networks: the optional action maps (the power
     map onto the env's own action bounds, the gear head above it), then from the raw
-    observation (with the optional goal and clearance features, position and brake flag) to the
-    networks' input ``NORMALISED`` (last).
+    observation (with the optional goal, clearance and gear features, position and brake
+    flag) to the networks' input ``NORMALISED`` (last).
 
     Normalised into its own key: the networks read it, while the raw observation stays in the
     data for evaluation and analysis (final position and heading errors). reduce_batch_dims:
@@ -202,6 +203,10 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
         source = ["observation_policy"]
     if agent.clearance_features:
         transforms.append(ClearanceFeatures(base.config, source[0], "observation_policy"))
+        source = ["observation_policy"]
+    if agent.gear_features:
+        transforms.append(GearTravelFeatures(base.config.vehicle.dt * base.action_repeat,
+                                             source[0], "observation_policy"))
         source = ["observation_policy"]
     if agent.aids.observe_position:
         transforms.append(CatTensors([*source, "position"], "observation_policy",

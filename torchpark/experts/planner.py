@@ -40,7 +40,7 @@ from torchpark.experts.config import ExpertConfig, PlannerConfig
 from torchpark.sim.geometry import OrientedBoxes, oriented_boxes, separation, wrap_angle
 from torchpark.sim.layout import LotLayout, build_layout
 from torchpark.sim.step import ParkingState
-from torchpark.sim.vehicle import vehicle_obb
+from torchpark.sim.vehicle import gear_travel, vehicle_obb
 
 
 class Grid(NamedTuple):
@@ -322,12 +322,9 @@ class GearHold:
         """The rows (N,) bool to keep their gear, given each car's ``speed`` (N,) m/s over
         the last step of ``step_time`` s and ``fresh`` (N,) bool, the rows whose episode has
         just begun (no step taken)."""
-        gear = torch.sign(speed)
-        moved = speed.abs() * step_time
-        changed = (gear != 0) & (gear != self.gear)
-        self.travel = torch.where(fresh, math.inf,
-                                  torch.where(changed, moved, self.travel + moved))
-        self.gear = torch.where(fresh, 0.0, torch.where(gear != 0, gear, self.gear))
+        gear, travel = gear_travel(speed, self.gear, self.travel, step_time)
+        self.travel = torch.where(fresh, math.inf, travel)
+        self.gear = torch.where(fresh, 0.0, gear)
         return self.travel < self.distance
 
     def keep_in(self, state: ParkingState, env) -> Tensor | None:

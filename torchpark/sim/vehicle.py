@@ -67,3 +67,16 @@ def vehicle_boxes(pose: Tensor, cfg: VehicleConfig) -> Tensor:
     """Footprint of vehicles at rear-axle poses [..., 3] as boxes [..., 5]."""
     f = vehicle_obb(pose, cfg)
     return torch.stack((f.cx, f.cy, pose[..., 2], f.half_length, f.half_width), dim=-1)
+
+
+def gear_travel(speed: Tensor, gear: Tensor, travel: Tensor, step_time: float
+                ) -> tuple[Tensor, Tensor]:
+    """The car's gear and its travel since it last changed, after a step of ``step_time`` s
+    at ``speed`` [...] m/s, from ``gear`` [...] (-1, 0 or 1; 0: none yet) and ``travel``
+    [...] m before it: a change of gear restarts the travel, a standstill keeps the gear.
+    What the planner's gear hold counts (``torchpark.experts.planner.GearHold``) and the
+    policy's gear features read (``torchpark.GearTravelFeatures``)."""
+    now = torch.sign(speed)
+    moved = speed.abs() * step_time
+    changed = (now != 0) & (now != gear)
+    return torch.where(now != 0, now, gear), torch.where(changed, moved, travel + moved)

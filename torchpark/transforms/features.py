@@ -1,5 +1,6 @@
 """Policy features computed from the paper's observation: the goal in the vehicle's frame,
-and the clearance left along each LIDAR ray.
+the clearance left along each LIDAR ray, and the gear the car moves in with its travel in it
+(from the observed speed over the episode).
 
 The paper's observation gives the goal offset in the world frame; a policy then has to learn a
 rotation by the heading before it can steer. These features hand it the rotated offset, and a
@@ -22,6 +23,7 @@ from torchrl.envs.transforms import Transform
 from torchpark.config import ParkingConfig
 from torchpark.sim.lidar import ray_angles
 from torchpark.sim.observation import NAV_DIM
+from torchpark.sim.vehicle import gear_travel
 
 GOAL_FEATURES = 7  # ex, ey, cos and sin of the heading error, three asinh scales
 
@@ -136,6 +138,85 @@ class ClearanceFeatures(Transform):
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         source = observation_spec[self.in_keys[0]]
         shape = (*source.shape[:-1], source.shape[-1] + self.n_rays)
+        observation_spec[self.out_keys[0]] = Unbounded(shape=shape, dtype=source.dtype,
+                                                       device=source.device)
+        return observation_spec
+
+
+GEAR_FEATURES = 2  # the gear, the travel in it (a share of the cap)
+
+
+class GearTravelFeatures(Transform):
+    """Writes ``out_key`` = cat(``in_key``, gear, min(travel, cap) / cap): the gear the car
+    last moved in and how far it has moved in it since it changed (:func:`gear_travel`),
+    counted from the speed the observations report (column 4 of the paper's observation,
+    which ``in_key`` starts with). A new episode starts with no gear and a travel of
+    ``cap``.
+
+    The planner's gear hold keeps a new gear until the car has moved ``gear_hold`` m in it:
+    a teacher with a hold labels the same observation with either gear, depending on how far
+    the car came. With these features the student sees what the teacher's label depends on.
+
+    Stateful per env (gear and travel, (N,)): ``_reset`` starts the rows it resets (all,
+    or those of the ``"_reset"`` mask), each step adds the step's motion. Called on a batch
+    of states outside an env (``transform(td)``), it has no history: each row's gear is its
+    speed's sign and its travel ``cap``.
+
+    Args:
+        step_time: the time one action drives, s (the env's dt times its action repeat).
+        in_key: the policy input that starts with the paper's observation.
+        out_key: where the [..., in_dim + GEAR_FEATURES] policy input goes.
+        cap: the travel (m) beyond which the feature no longer grows.
+    """
+
+    def __init__(self, step_time: float, in_key: str = "observation",
+                 out_key: str = "observation_policy", cap: float = 2.0) -> None:
+        if not step_time > 0:
+            raise ValueError(f"step_time must be > 0 (s), got {step_time!r}")
+        if not 0 < cap < float("inf"):
+            raise ValueError(f"cap must be finite and > 0 (m), got {cap!r}")
+        super().__init__(in_keys=[in_key], out_keys=[out_key])
+        self.step_time = step_time
+        self.cap = cap
+        self.gear: Tensor | None = None
+        self.travel: Tensor | None = None
+
+    def _features(self, source: Tensor, gear: Tensor, travel: Tensor) -> Tensor:
+        features = torch.stack([gear, travel.clamp(max=self.cap) / self.cap], dim=-1)
+        return torch.cat([source, features.to(source.dtype)], dim=-1)
+
+    def _write(self, tensordict, gear: Tensor, travel: Tensor):
+        source = tensordict.get(self.in_keys[0])
+        tensordict.set(self.out_keys[0], self._features(source, gear, travel))
+        return tensordict
+
+    def _apply_transform(self, source: Tensor) -> Tensor:
+        """Without history (a batch of states): the speed's sign and the full travel."""
+        speed = source[..., 4]
+        return self._features(source, torch.sign(speed), torch.full_like(speed, self.cap))
+
+    def _reset(self, tensordict, tensordict_reset):
+        speed = tensordict_reset.get(self.in_keys[0])[..., 4]
+        fresh = torch.ones_like(speed, dtype=torch.bool)
+        if self.gear is not None and self.gear.shape == speed.shape and tensordict is not None \
+                and "_reset" in tensordict.keys():
+            fresh = tensordict.get("_reset").reshape(speed.shape).to(speed.device)
+        else:
+            self.gear, self.travel = torch.zeros_like(speed), torch.zeros_like(speed)
+        self.gear = torch.where(fresh, 0.0, self.gear)
+        self.travel = torch.where(fresh, self.cap, self.travel)
+        return self._write(tensordict_reset, self.gear, self.travel)
+
+    def _step(self, tensordict, next_tensordict):
+        if self.gear is None:
+            raise RuntimeError("GearTravelFeatures: step before reset (reset the env first)")
+        speed = next_tensordict.get(self.in_keys[0])[..., 4]
+        self.gear, self.travel = gear_travel(speed, self.gear, self.travel, self.step_time)
+        return self._write(next_tensordict, self.gear, self.travel)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        source = observation_spec[self.in_keys[0]]
+        shape = (*source.shape[:-1], source.shape[-1] + GEAR_FEATURES)
         observation_spec[self.out_keys[0]] = Unbounded(shape=shape, dtype=source.dtype,
                                                        device=source.device)
         return observation_spec
