@@ -50,6 +50,15 @@ def goal_in_vehicle_frame(observation: Tensor, precision: float = 0.01) -> Tenso
                         torch.asinh(ey * scale), torch.asinh(err * scale)], dim=-1)
 
 
+def appended_spec(observation_spec: Composite, in_key: str, out_key: str, width: int
+                  ) -> Composite:
+    """``observation_spec`` with ``out_key``: ``in_key``'s spec ``width`` features wider."""
+    source = observation_spec[in_key]
+    shape = (*source.shape[:-1], source.shape[-1] + width)
+    observation_spec[out_key] = Unbounded(shape=shape, dtype=source.dtype, device=source.device)
+    return observation_spec
+
+
 class GoalFrameFeatures(Transform):
     """Writes ``out_key`` = cat(observation, :func:`goal_in_vehicle_frame`) and keeps
     ``in_key`` (the paper's 23-dim observation) as it is.
@@ -75,11 +84,7 @@ class GoalFrameFeatures(Transform):
         return self._call(tensordict_reset)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        source = observation_spec[self.in_keys[0]]
-        shape = (*source.shape[:-1], source.shape[-1] + GOAL_FEATURES)
-        observation_spec[self.out_keys[0]] = Unbounded(shape=shape, dtype=source.dtype,
-                                                       device=source.device)
-        return observation_spec
+        return appended_spec(observation_spec, self.in_keys[0], self.out_keys[0], GOAL_FEATURES)
 
 
 def box_edge_distance(n_rays: int, length: float, width: float) -> Tensor:
@@ -136,11 +141,7 @@ class ClearanceFeatures(Transform):
         return self._call(tensordict_reset)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        source = observation_spec[self.in_keys[0]]
-        shape = (*source.shape[:-1], source.shape[-1] + self.n_rays)
-        observation_spec[self.out_keys[0]] = Unbounded(shape=shape, dtype=source.dtype,
-                                                       device=source.device)
-        return observation_spec
+        return appended_spec(observation_spec, self.in_keys[0], self.out_keys[0], self.n_rays)
 
 
 GEAR_FEATURES = 2  # the gear, the travel in it (a share of the cap)
@@ -215,8 +216,4 @@ class GearTravelFeatures(Transform):
         return self._write(next_tensordict, self.gear, self.travel)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        source = observation_spec[self.in_keys[0]]
-        shape = (*source.shape[:-1], source.shape[-1] + GEAR_FEATURES)
-        observation_spec[self.out_keys[0]] = Unbounded(shape=shape, dtype=source.dtype,
-                                                       device=source.device)
-        return observation_spec
+        return appended_spec(observation_spec, self.in_keys[0], self.out_keys[0], GEAR_FEATURES)
