@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from torchpark.sim.vehicle import gear_travel
 from trainers.agent import load_agent
 from trainers.evaluate import checkpoint_agent, run_level
 
@@ -19,16 +20,19 @@ CHECKPOINTS = [ROOT / "results" / "policy_alone" / "checkpoint_best.pt",
 
 
 def _gym_episode(agent, occupancy: float, seed: int):
-    """One Gymnasium episode driven by ``agent.predict``: the rear-axle poses after each step
-    (from the reset on) and the last info."""
+    """One Gymnasium episode driven by ``agent.predict`` (its state passed back, as SB3's
+    recurrent predict: None for an agent without gear features): the rear-axle poses after
+    each step (from the reset on) and the last info."""
     env = agent.gym_env(occupancy=occupancy, seed=seed)
     obs, info = env.reset()
     base = env.unwrapped.env
     poses = [base.state.pose[0].clone()]
     terminated = truncated = False
+    state = None
     while not (terminated or truncated):
-        action, state = agent.predict(obs, info)
-        assert state is None and action.shape == (2,) and np.abs(action).max() <= 1
+        action, state = agent.predict(obs, info, state=state)
+        assert (state is None) == (not agent.config.agent.gear_features)
+        assert action.shape == (2,) and np.abs(action).max() <= 1
         obs, _, terminated, truncated, info = env.step(action)
         poses.append(base.state.pose[0].clone())
     return torch.stack(poses), info
@@ -69,6 +73,39 @@ def test_predict_takes_a_batch_and_names_what_it_needs():
     sampled, _ = agent.predict(batch, {"position": np.stack([info["position"]] * 3)},
                                deterministic=False)
     assert not np.array_equal(sampled, actions) and np.abs(sampled).max() <= 1
+
+
+def test_predict_carries_the_gear_state_row_by_row():
+    """An agent with the gear features (the committed policy alone): a batch's state is its
+    rows' states, a row flagged by episode_start starts afresh, and a state of another shape
+    is refused by name."""
+    agent = load_agent(str(CHECKPOINTS[0]))
+    assert agent.config.agent.gear_features
+    env = agent.gym_env(seed=0)
+    obs, info = env.reset()
+    state = None
+    for _ in range(3):  # a few steps in, so the car has a gear and a travel
+        action, state = agent.predict(obs, info, state=state)
+        obs, _r, _t, _u, info = env.step(action)
+    moving = obs.copy()
+    moving[4] = 1.5  # the row's speed after one more step: it drives on in its gear
+    batch = np.stack([obs, moving])
+    pos = {"position": np.stack([info["position"]] * 2)}
+    actions, states = agent.predict(batch, pos, state=np.stack([state, state]),
+                                    episode_start=np.array([False, True]))
+    going_on = agent.predict(obs, info, state=state)
+    fresh = agent.predict(moving, info)
+    np.testing.assert_allclose(actions[0], going_on[0], atol=1e-5)
+    np.testing.assert_allclose(actions[1], fresh[0], atol=1e-5)
+    np.testing.assert_array_equal(states, np.stack([going_on[1], fresh[1]]))
+    gear, travel = gear_travel(torch.tensor(obs[4]), torch.tensor(state[0]),
+                               torch.tensor(state[1]), agent.config.env.task.vehicle.dt)
+    assert tuple(going_on[1]) == (gear.item(), travel.item())
+    assert tuple(fresh[1]) == (0.0, 2.0)  # a new episode: no gear, the full travel
+    with pytest.raises(ValueError, match="state must be"):
+        agent.predict(obs, info, state=np.zeros(3))
+    with pytest.raises(ValueError, match="episode_start must"):
+        agent.predict(batch, pos, state=states, episode_start=np.array([True]))
 
 
 def test_load_agent_names_a_file_that_is_not_a_checkpoint(tmp_path):

@@ -35,8 +35,9 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import ProbabilisticActor
 
-from torchpark import ENV_ID, AidsConfig, ParkingConfig
+from torchpark import ENV_ID, AidsConfig, GearTravelFeatures, ParkingConfig
 from torchpark.aids.step import BRAKED
+from torchpark.sim.vehicle import gear_travel
 from trainers.checkpoint import load_trained, load_weights
 from trainers.config import TrainConfig, check_device, env_configs
 from trainers.utils import build_models, make_eval_env
@@ -85,12 +86,20 @@ class TrainedAgent:
                               device=self.config.env.device, **kwargs)
 
     def predict(self, observation: np.ndarray, info: dict[str, Any] | None = None,
-                deterministic: bool = True) -> tuple[np.ndarray, None]:
+                deterministic: bool = True, state: np.ndarray | None = None,
+                episode_start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """The action for a Gymnasium observation of :meth:`gym_env` ((23,), or (B, 23) with
         ``info`` arrays of B), as Stable-Baselines3's ``predict``: (action in that env's
-        [-1, 1] Box, None). ``info``: the env's last info, which an agent trained with its
+        [-1, 1] Box, state). ``info``: the env's last info, which an agent trained with its
         position or brake flag in its input reads (ValueError naming what is missing).
-        ``deterministic=False`` samples from the policy's distribution."""
+        ``deterministic=False`` samples from the policy's distribution.
+
+        ``state`` is None for an agent whose input is the observation of the moment. One with
+        the gear features (``AgentConfig.gear_features``) reads the episode so far, as a
+        recurrent policy: pass back the state the last call returned ((2,) or (B, 2): the
+        gear and its travel, m), None at an episode's first observation, and, as SB3 does,
+        ``episode_start`` (B,) bool for the rows whose observation is a new episode's first
+        (every row when ``state`` is None)."""
         obs = torch.as_tensor(np.asarray(observation, np.float32))
         dim = self._inputs.base_env.obs_dim
         if obs.dim() not in (1, 2) or obs.shape[-1] != dim:
@@ -112,13 +121,53 @@ class TrainedAgent:
                                  f"({len(td)} x {width}), got shape {tuple(value.shape)}")
             td[key] = value.reshape(len(td), width).to(batch.device)
         transform = self._inputs.transform
+        gear = self._gear_features
+        if gear is not None:
+            after = self._gear_state(gear, batch, state, episode_start)
+            td["_reset"] = ~after[2][:, None]  # the rows that go on keep the state set here
         mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
         with torch.no_grad(), set_exploration_type(mode):
             # the input transforms as they observe a reset (none updates a statistic here)
             td = transform.inv(self.actor(transform._reset(td, td)))
         high = self._inputs.base_env.action_spec.space.high.reshape(-1, 2)[0]
         action = (td["action"] / high).clamp(-1.0, 1.0).cpu().numpy()
-        return (action[0] if single else action), None
+        if gear is None:
+            return (action[0] if single else action), None
+        new_state = torch.stack((gear.gear, gear.travel), -1).cpu().numpy()
+        return (action[0], new_state[0]) if single else (action, new_state)
+
+    def _gear_state(self, gear: GearTravelFeatures, batch: torch.Tensor,
+                    state: np.ndarray | None, episode_start: np.ndarray | None) -> tuple:
+        """Sets ``gear``'s state to the rows' gear and travel after this observation (B, D):
+        a new episode's rows start, the others go on from ``state`` by the observed speed.
+        Returns (gear, travel, going_on) (B,) each."""
+        b = batch.shape[0]
+        going_on = torch.zeros(b, dtype=torch.bool, device=batch.device)
+        before = torch.zeros(b, 2, device=batch.device)
+        if state is not None:
+            before = torch.as_tensor(np.asarray(state, np.float32), device=batch.device)
+            if before.numel() != 2 * b:
+                raise ValueError(f"state must be the (2,) or ({b}, 2) array the last predict "
+                                 f"returned (or None at an episode's first observation), got "
+                                 f"shape {tuple(before.shape)}")
+            before = before.reshape(b, 2)
+            going_on = torch.ones(b, dtype=torch.bool, device=batch.device)
+            if episode_start is not None:
+                start = torch.as_tensor(np.asarray(episode_start, bool), device=batch.device)
+                if start.numel() != b:
+                    raise ValueError(f"episode_start must hold one flag per observation "
+                                     f"({b}), got shape {tuple(start.shape)}")
+                going_on = ~start.reshape(b)
+        moved = gear_travel(batch[:, 4], before[:, 0], before[:, 1], gear.step_time)
+        gear.gear = torch.where(going_on, moved[0], 0.0)
+        gear.travel = torch.where(going_on, moved[1], gear.cap)
+        return gear.gear, gear.travel, going_on
+
+    @cached_property
+    def _gear_features(self) -> GearTravelFeatures | None:
+        """The input's gear features, if the agent reads them."""
+        found = [t for t in self._inputs.transform if isinstance(t, GearTravelFeatures)]
+        return found[0] if found else None
 
     def _info_keys(self) -> tuple[str, ...]:
         """The env outputs besides the observation that the policy's input reads."""
