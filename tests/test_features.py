@@ -166,7 +166,9 @@ def test_gear_features_without_history_and_bad_arguments():
                        torch.tensor([[-1.0, 1.0], [0.0, 1.0], [1.0, 1.0]]))
     for kwargs, name in (({"step_time": 0.0}, "step_time"), ({"step_time": 0.1, "cap": 0.0},
                                                                "cap"),
-                         ({"step_time": 0.1, "cap": math.inf}, "cap")):
+                         ({"step_time": 0.1, "cap": math.inf}, "cap"),
+                         ({"step_time": True}, "step_time"), ({"step_time": "0.1"}, "step_time"),
+                         ({"step_time": math.nan}, "step_time")):
         with pytest.raises(ValueError, match=name):
             GearTravelFeatures(**kwargs)
     env = TransformedEnv(ParkingEnv(2, seed=0), GearTravelFeatures(0.1))

@@ -123,8 +123,8 @@ class TrainedAgent:
         transform = self._inputs.transform
         gear = self._gear_features
         if gear is not None:
-            after = self._gear_state(gear, batch, state, episode_start)
-            td["_reset"] = ~after[2][:, None]  # the rows that go on keep the state set here
+            going_on = self._gear_state(gear, batch, state, episode_start)
+            td["_reset"] = ~going_on[:, None]  # the rows that go on keep the state set here
         mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
         with torch.no_grad(), set_exploration_type(mode):
             # the input transforms as they observe a reset (none updates a statistic here)
@@ -137,10 +137,11 @@ class TrainedAgent:
         return (action[0], new_state[0]) if single else (action, new_state)
 
     def _gear_state(self, gear: GearTravelFeatures, batch: torch.Tensor,
-                    state: np.ndarray | None, episode_start: np.ndarray | None) -> tuple:
+                    state: np.ndarray | None, episode_start: np.ndarray | None
+                    ) -> torch.Tensor:
         """Sets ``gear``'s state to the rows' gear and travel after this observation (B, D):
         a new episode's rows start, the others go on from ``state`` by the observed speed.
-        Returns (gear, travel, going_on) (B,) each."""
+        Returns the rows that go on, (B,) bool."""
         b = batch.shape[0]
         going_on = torch.zeros(b, dtype=torch.bool, device=batch.device)
         before = torch.zeros(b, 2, device=batch.device)
@@ -161,7 +162,7 @@ class TrainedAgent:
         moved = gear_travel(batch[:, 4], before[:, 0], before[:, 1], gear.step_time)
         gear.gear = torch.where(going_on, moved[0], 0.0)
         gear.travel = torch.where(going_on, moved[1], gear.cap)
-        return gear.gear, gear.travel, going_on
+        return going_on
 
     @cached_property
     def _gear_features(self) -> GearTravelFeatures | None:

@@ -15,12 +15,14 @@ on the same log-like scale, where 5 cm and 50 cm are a unit apart.
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
-from torchpark.config import ParkingConfig
+from torchpark.config import ParkingConfig, is_number, require
 from torchpark.sim.lidar import ray_angles
 from torchpark.sim.observation import NAV_DIM
 from torchpark.sim.vehicle import gear_travel
@@ -172,10 +174,9 @@ class GearTravelFeatures(Transform):
 
     def __init__(self, step_time: float, in_key: str = "observation",
                  out_key: str = "observation_policy", cap: float = 2.0) -> None:
-        if not step_time > 0:
-            raise ValueError(f"step_time must be > 0 (s), got {step_time!r}")
-        if not 0 < cap < float("inf"):
-            raise ValueError(f"cap must be finite and > 0 (m), got {cap!r}")
+        for name, value in (("step_time", step_time), ("cap", cap)):
+            require(is_number(value) and math.isfinite(value) and value > 0, name,
+                    "a finite number > 0 (s for step_time, m for cap)", value)
         super().__init__(in_keys=[in_key], out_keys=[out_key])
         self.step_time = step_time
         self.cap = cap
