@@ -56,7 +56,11 @@ def vehicle_obb(pose: Tensor, cfg: VehicleConfig) -> OrientedBoxes:
     The box is ``length`` x ``width``, centred ``centre_offset`` ahead of the rear axle.
     """
     x, y, psi = pose.unbind(-1)
-    c, s = torch.cos(psi), torch.sin(psi)
+    # The heading's cos and sin as one stacked tensor: compiled, inductor stores the pair
+    # once per pose and the per-box loops (SAT, LIDAR) load it; two separate tensors were
+    # re-evaluated with libm inside every box chunk of both loops (the step's graph 2.96 ->
+    # 2.27 ms at N = 16,384, bit for bit the same).
+    c, s = torch.stack((torch.cos(psi), torch.sin(psi))).unbind(0)
     half_length = torch.full_like(x, cfg.length / 2.0)
     half_width = torch.full_like(x, cfg.width / 2.0)
     offset = cfg.centre_offset
