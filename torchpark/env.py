@@ -700,13 +700,17 @@ class ParkingEnv(EnvBase):
             self._started = True
             return self._reset_output()
         if tensordict is not None and "_reset" in tensordict.keys() and self._started:
-            # The rows to reset: the reset's one read-back (their count; on CUDA a sync,
-            # beside the one torchrl makes for done.any()).
+            # The rows to reset: the reset's one read-back (their count; on CUDA a sync).
             index = tensordict.get("_reset").reshape(n).nonzero()[:, 0]
         else:  # the first reset draws every row, whatever the mask
             index = torch.arange(n, device=self.device)
+        return self._reset_rows(index)
+
+    def _reset_rows(self, index: torch.Tensor) -> TensorDictBase:
+        """The host path's reset of the rows ``index`` (B,) int64, sorted: the next B
+        episodes drawn ahead, written in place; returns the reset's output for every row."""
         count = index.shape[0]
-        if count > n - self._ahead_used:
+        if count > self.num_envs - self._ahead_used:
             self._draw_episodes_ahead()
         # The next `count` episodes drawn ahead, in the order of the rows' indices.
         taken = slice(self._ahead_used, self._ahead_used + count)
@@ -732,16 +736,17 @@ class ParkingEnv(EnvBase):
             return self._step_and_reset(tensordict)
         tensordict = self.step(tensordict)
         tensordict_ = self._step_mdp(tensordict)
-        done = tensordict.get(("next", "done"))
-        # One read-back, as torchrl's path makes for done.any().
-        any_done, all_done = torch.stack((done.any(), done.all())).tolist()
-        if any_done:
-            rows = TensorDict({"_reset": done}, batch_size=self.batch_size, device=self.device)
-            fresh = self._reset(rows)
+        # The ended rows: the path's one read-back (their count), where torchrl's reads
+        # done.any() and the reset then the rows.
+        index = tensordict.get(("next", "done")).reshape(self.num_envs).nonzero()[:, 0]
+        count = index.shape[0]
+        if count:
+            fresh = self._reset_rows(index)
             others = tensordict_.exclude(*fresh.keys())
             tensordict_.update(fresh)
-            if not others.is_empty() and not all_done:  # torchrl pads partial resets only
-                tensordict_.update(others.masked_fill(done.reshape(self.batch_size), 0))
+            if not others.is_empty() and count < self.num_envs:  # torchrl pads partial
+                # resets only; new tensors, as its merge makes (the caller's are kept)
+                tensordict_.update(others.apply(lambda t: t.index_fill(0, index, 0)))
         return tensordict, tensordict_
 
     def _step_and_reset(self, tensordict: TensorDictBase
