@@ -199,7 +199,6 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("target_lateral", 0.0),
                                           ("target_lateral", float("inf")),
                                           ("target_heading", -0.1), ("target_heading", 4.0),
-                                          ("steer_reach", 0.9), ("steer_reach", 2.5),
                                           ("width", 0), ("width", True), ("depth", 9),
                                           ("depth", 2.0)])
 def test_bad_settings_are_refused_by_name(field, value):
@@ -290,28 +289,6 @@ def test_a_student_with_the_gear_features_reads_them_everywhere(teacher_path, tm
     assert bool(((travel >= 0) & (travel <= 1)).all()) and bool((travel < 1).any())
     agent = load_agent(str(out / "checkpoint_final.pt"))
     agent.make_env(2, 0.9, seed=0).rollout(3, agent.policy)
-
-
-def test_a_student_with_a_steer_reach_is_taught_and_driven_through_the_wider_map(
-        teacher_path, tmp_path, coarse_planner):
-    """--steer-reach 1.1: the student's labels and the evaluator's env map u = 1 / 1.1 to the
-    lock (the env clamps past it), so a tanh reaches the lock inside its range."""
-    out = tmp_path / "reach"
-    main([teacher_path, "--out", str(out), "--iterations", "1", "--envs", "4", "--steps",
-          "5", "--epochs", "1", "--yardstick", "2", "--approach", "8", "--steer-reach",
-          "1.1"])
-    cfg, _ = load_trained(str(out / "checkpoint_final.pt"))
-    assert cfg.agent.action_reach == [1.0, 1.1]
-    labels = torch.load(out / "dagger_data" / "iteration_000.pt")[1]
-    assert float(labels[:, 1].abs().max()) <= 1 / 1.1 + 1e-6
-    agent = load_agent(str(out / "checkpoint_final.pt"))
-    env = agent.make_env(2, 0.0, seed=0)
-    power = next(t for t in env.transform if isinstance(t, PowerActionMap))
-    lock = env.base_env.config.vehicle.max_steer
-    u = torch.tensor([[1.0, 1 / 1.1], [-1.0, -1.0]])
-    assert torch.allclose(power.inv(TensorDict({"action": u}, [2]))["action"][:, 1],
-                          torch.tensor([lock, -1.1 * lock]))
-    env.rollout(3, agent.policy)
 
 
 def test_a_gear_head_is_scored_on_its_gear_and_that_gears_pair_only():

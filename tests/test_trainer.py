@@ -29,14 +29,7 @@ from torchpark import (
 )
 from torchpark.files import locked
 from torchpark.transforms.features import GOAL_FEATURES
-from trainers.config import (
-    AgentConfig,
-    ModelConfig,
-    TrainConfig,
-    check_agent,
-    env_configs,
-    load_config,
-)
+from trainers.config import ModelConfig, TrainConfig, env_configs, load_config
 from trainers.evaluate import COLUMNS, evaluate
 from trainers.evaluate import main as evaluate_main
 from trainers.ppo import main, ppo_step, recompute_log_prob_, train
@@ -506,7 +499,6 @@ def test_action_repeat_must_divide_the_batch():
     ("agent.aids.brake.margin=2", "BrakeConfig.margin"),
     ("agent.aids.brake.margni=0.2", "Key 'margni' not in 'BrakeConfig'"),
     ("agent.gear_head=true", "agent.gear_head"),
-    ("agent.action_reach=[1.0,1.1]", "agent.action_reach"),
     ("loss.entropy_coef=-0.5", "loss.entropy_coef"),
     ("env.task.reward.collision_penalty=nan", "RewardConfig.collision_penalty"),
     ("env.task.reward.collision_penalty=200", "env.task.reward.collision_penalty"),
@@ -760,13 +752,3 @@ def test_ray_collection_without_ray_installed_is_one_line(monkeypatch):
                                          r"ray needs Ray installed"):
         load_config("smoke", ["dist.collectors=ray", "dist.num_collectors=2",
                               "env.num_envs=16"])
-
-
-@pytest.mark.parametrize("reach", [[0.9, 1.0], [1.0], [1.0, 2.5], [True, 1.1],
-                                   [1.0, float("nan")]])
-def test_an_action_reach_is_one_number_in_1_2_per_action_dimension(reach):
-    cfg = TrainConfig(agent=AgentConfig(action_exponents=[3.0, 1.0], action_reach=reach))
-    with pytest.raises(ValueError, match=r"agent\.action_reach must be"):
-        check_agent(cfg)
-    check_agent(TrainConfig(agent=AgentConfig(action_exponents=[3.0, 1.0],
-                                              action_reach=[1.0, 1.1])))

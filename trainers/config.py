@@ -58,11 +58,6 @@ class AgentConfig:
     # and the env receives (max_speed, max_steer) * sign(u) |u| ** exponents
     # (torchpark.PowerActionMap), e.g. [3, 1] for fine speed control near standstill.
     action_exponents: list[float] | None = None
-    # With action_exponents: the map's bound per dimension as a multiple of the env's (the
-    # env clamps past its own), e.g. [1, 1.1]: a tanh policy's steer reaches the lock at
-    # u = 0.91, inside its range, where at 1 it reaches the lock only asymptotically and
-    # turns wider. None: the env's bounds.
-    action_reach: list[float] | None = None
     # With action_exponents: the policy outputs a gear and a (speed, steer) pair per gear
     # (torchpark.GearActionMap, 5 dims); the gear's sign picks forwards or reverse.
     gear_head: bool = False
@@ -338,14 +333,6 @@ def check_agent(cfg: TrainConfig) -> None:
     require(not agent.gear_head or agent.action_exponents is not None,
             "agent.gear_head", "False without agent.action_exponents (the gear picks a pair "
             "of [-1, 1] actions for the power map)", agent.gear_head)
-    reach = agent.action_reach
-    if reach is not None:
-        require(agent.action_exponents is not None and len(reach) == len(
-            agent.action_exponents) and all(
-            isinstance(r, (int, float)) and not isinstance(r, bool) and 1.0 <= r <= 2.0
-            for r in reach), "agent.action_reach",
-            "None, or with agent.action_exponents one number in [1, 2] per action dimension",
-            reach)
 
 
 def _check_dist(cfg: TrainConfig) -> None:

@@ -114,10 +114,7 @@ class DistillConfig:
     per level in the first iteration (0: none), drawn up to ``approach_reach`` m behind the
     goal and weighted ``approach_weight`` times a rollout state in the fit;
     ``speed_exponent`` / ``steer_exponent``: the student's action map (u in [-1, 1] drives
-    high * sign(u) |u| ** exponent); ``steer_reach``: its steering bound ``high`` as a
-    multiple of the env's lock (the env clamps past it: above 1, the student's tanh reaches
-    the lock inside its range, :attr:`trainers.config.AgentConfig.action_reach`);
-    ``clearance_features``: the student also reads the gap
+    high * sign(u) |u| ** exponent); ``clearance_features``: the student also reads the gap
     along each LIDAR ray (torchpark.ClearanceFeatures); ``position``: and its position in
     the lot (torchpark.AidsConfig.observe_position); ``settle``: the teacher's law creeps
     back to the goal from up to ``settle`` m past it
@@ -151,7 +148,6 @@ class DistillConfig:
     lr_decay: bool = False
     speed_exponent: float = 3.0
     steer_exponent: float = 1.0
-    steer_reach: float = 1.0
     clearance_features: bool = False
     position: bool = False
     settle: float = 0.0
@@ -180,8 +176,6 @@ class DistillConfig:
         for name in ("speed_exponent", "steer_exponent"):
             value = getattr(self, name)
             require(1.0 <= value <= 8.0, f"DistillConfig.{name}", "in [1, 8]", value)
-        require(1.0 <= self.steer_reach <= 2.0, "DistillConfig.steer_reach", "in [1, 2]",
-                self.steer_reach)
         require(0.0 <= self.near_goal <= 1.0, "DistillConfig.near_goal", "in [0, 1]",
                 self.near_goal)
         require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
@@ -262,8 +256,7 @@ class Teacher:
 def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
     """The student's TrainConfig: the paper's env and agent (no aid, one action per step of
     dt) with the goal features (and the clearance features and position, if asked) and the
-    power action map of ``speed_exponent`` / ``steer_exponent`` (and ``steer_reach``), the
-    teacher's network sizes
+    power action map of ``speed_exponent`` / ``steer_exponent``, the teacher's network sizes
     (each hidden layer ``width`` wide and ``depth`` of them, where given); training starts
     near the goal with probability ``near_goal``."""
     tcfg, _ = load_trained(teacher)
@@ -276,9 +269,7 @@ def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
         agent=AgentConfig(
             aids=AidsConfig(observe_position=cfg.position, near_goal_starts=NearGoalStarts(
                 probability=cfg.near_goal) if cfg.near_goal > 0 else None),
-            action_exponents=[cfg.speed_exponent, cfg.steer_exponent],
-            action_reach=None if cfg.steer_reach == 1.0 else [1.0, cfg.steer_reach],
-            gear_head=True,
+            action_exponents=[cfg.speed_exponent, cfg.steer_exponent], gear_head=True,
             goal_features=True, clearance_features=cfg.clearance_features,
             gear_features=cfg.gear_features),
         model=dataclasses.replace(tcfg.model, hidden=hidden),
@@ -334,18 +325,17 @@ def approach_states(env: TransformedEnv, features: Transform, teacher: Teacher,
     return torch.cat(inputs), torch.cat(labels)
 
 
-def rollout(env: TransformedEnv, actor, teacher: Teacher, high: torch.Tensor,
-            exponents: torch.Tensor, steps: int, teacher_drives: bool, noise: float,
-            generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tensor, steps: int,
+            teacher_drives: bool, noise: float, generator: torch.Generator
+            ) -> tuple[torch.Tensor, torch.Tensor]:
     """``steps`` steps of dt of ``env`` (every row reset first), driven by the teacher's
     labels or the student's deterministic actions, noisy on every other row (Gaussian,
     ``noise`` times the env's bounds, added to the env's action). Returns the student's raw
     inputs (steps x N, D) and the teacher's labels there in the student's units (u, the
-    (speed, steer) its power map with ``high``, ``exponents`` (2,) turns into them, which
-    the gear head
+    (speed, steer) its power map with ``exponents`` turns into them, which the gear head
     picks by :func:`~torchpark.transforms.actions.gear_select`)."""
     n = env.base_env.num_envs
-    bound = env.base_env.action_spec.space.high[0]
+    high = env.base_env.action_spec.space.high[0]
     noisy = (torch.arange(n, device=env.device) % 2 == 1)[:, None]
     inputs, labels = [], []
     teacher.forget(torch.ones(n, dtype=torch.bool, device=env.device))
@@ -360,7 +350,7 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, high: torch.Tensor,
                 action = actor(td)["action"]
                 action = gear_select(action)
             jitter = torch.randn(action.shape, generator=generator, device=action.device)
-            control = power_map(action, high, exponents) + noisy * noise * bound * jitter
+            control = power_map(action, high, exponents) + noisy * noise * high * jitter
             action = power_map_inverse(control, high, exponents)
             td["action"] = gear_inverse(action)
             td, td_next = env.step_and_maybe_reset(td)
@@ -539,8 +529,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
     teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, teacher_planner(cfg, planner))
     actor, _ = build_models(scfg)
-    high = base.action_spec.space.high[0] * torch.tensor([1.0, cfg.steer_reach],
-                                                         device=base.device)
+    high = base.action_spec.space.high[0]
     exponents = torch.tensor([cfg.speed_exponent, cfg.steer_exponent], device=base.device)
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
     data, rows = [], []  # (inputs, labels, weights) per iteration
@@ -575,8 +564,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
         batches = []
         for level in PAPER_LEVELS:
             base.occupancy = level
-            x, y = rollout(env, actor, teacher, high, exponents, cfg.steps, iteration == 0,
-                           cfg.noise, generator)
+            x, y = rollout(env, actor, teacher, exponents, cfg.steps, iteration == 0,
+                                   cfg.noise, generator)
             batches.append((x, y, torch.ones(x.shape[0], device=x.device)))
             frames += x.shape[0]
         if iteration == 0:

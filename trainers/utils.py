@@ -195,9 +195,6 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
     agent = cfg.agent
     if agent.action_exponents is not None:
         high = base.action_spec.space.high.reshape(-1, base.action_spec.shape[-1])[0]
-        if agent.action_reach is not None:
-            high = high * torch.as_tensor(agent.action_reach, dtype=high.dtype,
-                                          device=high.device)
         transforms.append(PowerActionMap(high.cpu(), agent.action_exponents))
         if agent.gear_head:
             transforms.append(GearActionMap())
