@@ -37,6 +37,7 @@ from torchrl.modules import ProbabilisticActor
 
 from torchpark import ENV_ID, AidsConfig, GearTravelFeatures, ParkingConfig
 from torchpark.aids.step import BRAKED
+from torchpark.sim.observation import SPEED
 from torchpark.sim.vehicle import gear_travel
 from trainers.checkpoint import load_trained, load_weights
 from trainers.config import TrainConfig, check_device, env_configs
@@ -159,9 +160,9 @@ class TrainedAgent:
                     raise ValueError(f"episode_start must hold one flag per observation "
                                      f"({b}), got shape {tuple(start.shape)}")
                 going_on = ~start.reshape(b)
-        moved = gear_travel(batch[:, 4], before[:, 0], before[:, 1], gear.step_time)
-        gear.gear = torch.where(going_on, moved[0], 0.0)
-        gear.travel = torch.where(going_on, moved[1], gear.cap)
+        gear.gear, gear.travel = gear_travel(batch[:, SPEED], before[:, 0], before[:, 1],
+                                             gear.step_time)
+        gear.start_rows(~going_on)
         return going_on
 
     @cached_property

@@ -21,6 +21,8 @@ if TYPE_CHECKING:
 # distances / max_range follow.
 NAV_FIELDS = ("dx", "dy", "cos_psi", "sin_psi", "v", "cos_alpha", "sin_alpha")
 NAV_DIM = len(NAV_FIELDS)
+# The speed's column (m/s).
+SPEED = NAV_FIELDS.index("v")
 
 
 def observation_dim(cfg: ParkingConfig) -> int:

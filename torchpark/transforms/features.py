@@ -24,7 +24,7 @@ from torchrl.envs.transforms import Transform
 
 from torchpark.config import ParkingConfig, is_number, require
 from torchpark.sim.lidar import ray_angles
-from torchpark.sim.observation import NAV_DIM
+from torchpark.sim.observation import NAV_DIM, SPEED
 from torchpark.sim.vehicle import gear_travel
 
 GOAL_FEATURES = 7  # ex, ey, cos and sin of the heading error, three asinh scales
@@ -152,8 +152,8 @@ GEAR_FEATURES = 2  # the gear, the travel in it (a share of the cap)
 class GearTravelFeatures(Transform):
     """Writes ``out_key`` = cat(``in_key``, gear, min(travel, cap) / cap): the gear the car
     last moved in and how far it has moved in it since it changed (:func:`gear_travel`),
-    counted from the speed the observations report (column 4 of the paper's observation,
-    which ``in_key`` starts with). A new episode starts with no gear and a travel of
+    counted from the speed the observations report (column ``SPEED`` of the paper's
+    observation, which ``in_key`` starts with). A new episode starts with no gear and a travel of
     ``cap``.
 
     The planner's gear hold keeps a new gear until the car has moved ``gear_hold`` m in it:
@@ -194,25 +194,29 @@ class GearTravelFeatures(Transform):
 
     def _apply_transform(self, source: Tensor) -> Tensor:
         """Without history (a batch of states): the speed's sign and the full travel."""
-        speed = source[..., 4]
+        speed = source[..., SPEED]
         return self._features(source, torch.sign(speed), torch.full_like(speed, self.cap))
 
     def _reset(self, tensordict, tensordict_reset):
-        speed = tensordict_reset.get(self.in_keys[0])[..., 4]
+        speed = tensordict_reset.get(self.in_keys[0])[..., SPEED]
         fresh = torch.ones_like(speed, dtype=torch.bool)
         if self.gear is not None and self.gear.shape == speed.shape and tensordict is not None \
                 and "_reset" in tensordict.keys():
             fresh = tensordict.get("_reset").reshape(speed.shape).to(speed.device)
         else:
             self.gear, self.travel = torch.zeros_like(speed), torch.zeros_like(speed)
-        self.gear = torch.where(fresh, 0.0, self.gear)
-        self.travel = torch.where(fresh, self.cap, self.travel)
+        self.start_rows(fresh)
         return self._write(tensordict_reset, self.gear, self.travel)
+
+    def start_rows(self, rows: Tensor) -> None:
+        """The rows ``rows`` (N,) bool start an episode: no gear, a travel of ``cap``."""
+        self.gear = torch.where(rows, 0.0, self.gear)
+        self.travel = torch.where(rows, self.cap, self.travel)
 
     def _step(self, tensordict, next_tensordict):
         if self.gear is None:
             raise RuntimeError("GearTravelFeatures: step before reset (reset the env first)")
-        speed = next_tensordict.get(self.in_keys[0])[..., 4]
+        speed = next_tensordict.get(self.in_keys[0])[..., SPEED]
         self.gear, self.travel = gear_travel(speed, self.gear, self.travel, self.step_time)
         return self._write(next_tensordict, self.gear, self.travel)
 
