@@ -63,7 +63,6 @@ from torchpark.sim.observation import observation_dim, observe
 from torchpark.sim.ring import END_FLAGS, Counters, guarded_step, reset_rows, step_and_reset
 from torchpark.sim.step import ParkingState, put_rows_, take_rows
 from torchpark.sim.world import World, build_world
-from torchpark.transforms.sync_free import merge_reset
 
 # torch.compile keeps the graphs of every compiled partial function in the cache of one
 # wrapper code object, 8 by default: with three per env, the third compiled env of a process
@@ -138,6 +137,21 @@ def _first_difference(saved: object, ours: object, default: object = None, name:
     if saved != ours:
         return f"{name or 'build'}={saved!r} in the snapshot, {ours!r} here"
     return None
+
+
+def _take_reset(tensordict_: TensorDictBase, fresh: TensorDictBase,
+                pad: Callable[[TensorDictBase], TensorDictBase] | None) -> None:
+    """Put a reset into the next step's root ``tensordict_`` (in place) as torchrl's generic
+    merge (``_update_during_reset``, a ``where`` per key) would. ``fresh`` is the env's reset
+    output, which already holds for every row what that merge gives (the reset rows' new
+    episodes, the other rows as the step left them, the end flags False, as they are in a
+    row that did not end), so its keys replace those of ``tensordict_`` as they are. The
+    other keys (the action, a policy's outputs) are replaced by ``pad`` of them, new tensors
+    zeroed in the reset rows, as the merge makes them; ``pad`` None: left as they are."""
+    others = tensordict_.exclude(*fresh.keys())
+    tensordict_.update(fresh)
+    if pad is not None and not others.is_empty():
+        tensordict_.update(pad(others))
 
 
 class ParkingEnv(EnvBase):
@@ -722,12 +736,9 @@ class ParkingEnv(EnvBase):
     def _step_and_maybe_reset(self, tensordict: TensorDictBase
                               ) -> tuple[TensorDictBase, TensorDictBase]:
         """torchrl's step and reset of the ended rows (what ``env.step_and_maybe_reset``, the
-        rollouts and the collectors call), the reset's merge written for this env: after
-        :meth:`_reset` of the done rows the env's outputs hold, for every row, what torchrl's
-        generic merge (a ``where`` per key) would give, so they replace those keys as they
-        are; the other keys (the action, a policy's outputs) are zeroed in the reset rows when
-        not every row resets, as torchrl's merge pads them. The same tensordicts as the
-        generic path (tested), without its merge of the env's own keys."""
+        rollouts and the collectors call), the reset put in as torchrl's generic merge would
+        (:func:`_take_reset`): the same tensordicts as the generic path (tested), without its
+        ``where`` per key."""
         if self._post_step_mdp_hooks is not None:  # a hook of torchrl's: its generic path
             return super()._step_and_maybe_reset(tensordict)
         if tensordict.device != self.device:
@@ -741,24 +752,24 @@ class ParkingEnv(EnvBase):
         index = tensordict.get(("next", "done")).reshape(self.num_envs).nonzero()[:, 0]
         count = index.shape[0]
         if count:
-            fresh = self._reset_rows(index)
-            others = tensordict_.exclude(*fresh.keys())
-            tensordict_.update(fresh)
-            if not others.is_empty() and count < self.num_envs:  # torchrl pads partial
-                # resets only; new tensors, as its merge makes (the caller's are kept)
-                tensordict_.update(others.apply(lambda t: t.index_fill(0, index, 0)))
+            # torchrl pads partial resets only
+            pad = (lambda td: td.apply(lambda t: t.index_fill(0, index, 0))
+                   ) if count < self.num_envs else None
+            _take_reset(tensordict_, self._reset_rows(index), pad)
         return tensordict, tensordict_
 
     def _step_and_reset(self, tensordict: TensorDictBase
                         ) -> tuple[TensorDictBase, TensorDictBase]:
         """:meth:`_step_and_maybe_reset` with ``reset_in_step``: torchrl's step, whose
         :meth:`_step` runs the step and the reset of its ended rows as one function and keeps
-        what the reset returns; then torchrl's merge of the reset, as a ``where`` on the device
-        (:func:`~torchpark.transforms.sync_free.merge_reset`, also the merge of a
-        ``SyncFreeEnv`` around this env)."""
+        what the reset returns; then the reset's outputs taken as the host path takes them,
+        the other keys zeroed in the ended rows on the device (nothing read back)."""
         tensordict, after = self.step_resetting(self.step, tensordict)
-        done = tensordict.get(("next", "done")).reshape(self.batch_size)
-        return tensordict, merge_reset(self._step_mdp(tensordict), after, done)
+        done = tensordict.get(("next", "done")).reshape(self.num_envs)
+        rows = done & ~done.all()  # torchrl pads partial resets only
+        tensordict_ = self._step_mdp(tensordict)
+        _take_reset(tensordict_, after, lambda td: td.masked_fill(rows, 0))
+        return tensordict, tensordict_
 
     def step_resetting(self, step: Callable[[TensorDictBase], TensorDictBase],
                        tensordict: TensorDictBase) -> tuple[TensorDictBase, TensorDictBase]:
