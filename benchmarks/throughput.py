@@ -14,6 +14,9 @@ cudagraphs: compiled with ``mode="reduce-overhead"``, CUDA only):
   ``env.rollout`` and the collectors call it: episodes end (mostly collisions) and the ended
   rows reset;
 - rollout: ``env.rollout`` of ``--horizon`` steps with random actions, going on from the last;
+  for these two paths and the collector a measurement spans at least ``DRAWS_PER_WINDOW``
+  batched draws of new episodes (the env draws N at a time, every ~140 steps with random
+  actions), so the figure carries their share of the cost whatever ``--calls`` is;
 - collector: a torchrl ``Collector`` of the ``fast`` preset (its aids, transforms, its
   actor's architecture at its initial weights, compiled as the preset compiles it) at
   occupancy 0.5, batches of N x ``--horizon``
@@ -57,6 +60,9 @@ from torchpark import ParkingEnv
 MODES = {"eager": None, "compiled": {}, "cudagraphs": {"mode": "reduce-overhead"}}
 PATHS = ("step", "step_and_maybe_reset", "rollout", "kernel", "collector", "reset")
 RESET_SHARES = (0.001, 0.01, 0.1, 1.0)
+# Batched draws of new episodes a step_and_maybe_reset or rollout measurement spans: the best
+# of windows shorter than the draws' period would be one without a draw.
+DRAWS_PER_WINDOW = 4
 
 
 RESET_IN_STEP = {"auto": None, "on": True, "off": False}
@@ -104,6 +110,19 @@ def step_and_maybe_reset_call(env: ParkingEnv, args) -> Callable[[], None]:
         count += 1
 
     return call
+
+
+def steps_per_draw(env: ParkingEnv, steps: int = 64) -> float:
+    """Env steps per batched draw of N new episodes (the env draws N at a time) on
+    ``step_and_maybe_reset`` with random actions: N over the rows ended per step, counted
+    over ``steps`` steps (read back per step: before timing, never inside it); inf if none
+    ended."""
+    actions = random_actions(env.num_envs, env.device)
+    td, ended = env.reset(), 0
+    for step in range(steps):
+        out, td = env.step_and_maybe_reset(td.set("action", actions[step % len(actions)]))
+        ended += int(out["next", "done"].sum())
+    return env.num_envs * steps / ended if ended else math.inf
 
 
 def rollout_call(env: ParkingEnv, args) -> Callable[[], None]:
@@ -191,7 +210,10 @@ def collector_frames(num_envs: int, device: str, mode: str, args):
     def call() -> None:
         next(batches)
 
-    return call, frames
+    # Batches spanning DRAWS_PER_WINDOW draws of N episodes, from the ends of a few batches.
+    ended = sum(int(next(batches)["next", "done"].sum()) for _ in range(4))
+    steps = 4 * args.horizon * num_envs * DRAWS_PER_WINDOW / ended if ended else math.inf
+    return call, frames, window(steps, args.horizon)
 
 
 CALLS = {"step": step_call, "step_and_maybe_reset": step_and_maybe_reset_call,
@@ -277,8 +299,11 @@ def measure(num_envs: int, device: str, mode: str, paths: list[str], args
                 # Calls enough to hand out every episode drawn ahead twice: the figure is
                 # the reset's cost with its share of the batched draws.
                 units, calls = 1, max(args.calls, math.ceil(2 / float(path.split()[1])))
-            elif path == "rollout":
-                units, calls = num_envs * args.horizon, max(1, args.calls // args.horizon)
+            elif path in ("step_and_maybe_reset", "rollout"):
+                per_call = args.horizon if path == "rollout" else 1
+                units = num_envs * per_call
+                calls = max(args.calls // per_call,
+                            window(DRAWS_PER_WINDOW * steps_per_draw(env), per_call))
             else:
                 units, calls = num_envs, args.calls
             results[path] = timed(call, units, device, calls, args)
@@ -288,12 +313,19 @@ def measure(num_envs: int, device: str, mode: str, paths: list[str], args
             results[path]["bytes_per_env"] = torch.cuda.max_memory_allocated() / num_envs
     if "collector" in paths:
         try:
-            call, frames = collector_frames(num_envs, device, mode, args)
-            results["collector"] = timed(call, frames, device, max(1, args.calls // 8), args)
+            call, frames, batches = collector_frames(num_envs, device, mode, args)
+            results["collector"] = timed(call, frames, device,
+                                         max(args.calls // 8, batches), args)
         except Exception as err:
             results["collector"] = {"error": describe(err)}
     bar.close()
     return results
+
+
+def window(steps: float, per_call: int, most: int = 20_000) -> int:
+    """Calls of ``per_call`` env steps each that cover ``steps`` env steps (at least 1, at
+    most ``most`` steps' worth)."""
+    return max(1, math.ceil(min(steps, most) / per_call))
 
 
 def describe(err: Exception) -> str:
@@ -392,7 +424,9 @@ def main() -> None:
     parser.add_argument("--modes", nargs="+", default=["compiled"], choices=MODES)
     parser.add_argument("--paths", nargs="+", default=list(PATHS), choices=PATHS)
     parser.add_argument("--occupancy", type=float, default=0.5)
-    parser.add_argument("--calls", type=int, default=32, help="env steps per measurement")
+    parser.add_argument("--calls", type=int, default=32,
+                        help="env steps per measurement (step_and_maybe_reset, rollout and "
+                             "the collector: at least what spans the batched draws)")
     parser.add_argument("--horizon", type=int, default=16,
                         help="env steps per rollout and per collector batch (per env)")
     parser.add_argument("--warmup", type=int, default=3)
@@ -420,7 +454,9 @@ def main() -> None:
     refs = reference_steps_per_second(args.occupancy, 2.0, args.repeats)
     reference = max(refs)
     print(f"reference (numpy, one env): {reference:,.0f} steps/s (best of {spread(refs)})")
-    print(f"best of {args.repeats} measurements, the worst in brackets\n")
+    print(f"best of {args.repeats} measurements, the worst in brackets; a measurement of "
+          f"step_and_maybe_reset, rollout or the collector spans >= {DRAWS_PER_WINDOW} batched "
+          f"draws of new episodes\n")
     shown = [p for p in ("step", "step_and_maybe_reset", "rollout") if p in args.paths]
     columns = [f"{p} env-steps/s" + ("" if p == "step" else " (/ step)") for p in shown]
     if "kernel" in args.paths:
