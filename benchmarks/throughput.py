@@ -60,8 +60,8 @@ from torchpark import ParkingEnv
 MODES = {"eager": None, "compiled": {}, "cudagraphs": {"mode": "reduce-overhead"}}
 PATHS = ("step", "step_and_maybe_reset", "rollout", "kernel", "collector", "reset")
 RESET_SHARES = (0.001, 0.01, 0.1, 1.0)
-# Batched draws of new episodes a step_and_maybe_reset or rollout measurement spans: the best
-# of windows shorter than the draws' period would be one without a draw.
+# Batched draws of new episodes a step_and_maybe_reset, rollout or collector measurement
+# spans: the best of windows shorter than the draws' period would be one without a draw.
 DRAWS_PER_WINDOW = 4
 
 
