@@ -211,9 +211,10 @@ def collector_frames(num_envs: int, device: str, mode: str, args):
         next(batches)
 
     # Batches spanning DRAWS_PER_WINDOW draws of N episodes, from the ends of a few batches.
-    ended = sum(int(next(batches)["next", "done"].sum()) for _ in range(4))
-    steps = 4 * args.horizon * num_envs * DRAWS_PER_WINDOW / ended if ended else math.inf
-    return call, frames, window(steps, args.horizon)
+    probe = 4
+    ended = sum(int(next(batches)["next", "done"].sum()) for _ in range(probe))
+    per_draw = probe * args.horizon * num_envs / ended if ended else math.inf
+    return call, frames, window(DRAWS_PER_WINDOW * per_draw, args.horizon)
 
 
 CALLS = {"step": step_call, "step_and_maybe_reset": step_and_maybe_reset_call,
