@@ -40,6 +40,7 @@ from trainers.distill import (
     teacher_planner,
 )
 from trainers.evaluate import checkpoint_agent
+from trainers.heads import BinnedGearHead
 from trainers.utils import (
     build_models,
     make_base_env,
@@ -199,6 +200,8 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("target_lateral", 0.0),
                                           ("target_lateral", float("inf")),
                                           ("target_heading", -0.1), ("target_heading", 4.0),
+                                          ("steer_bins", 4), ("steer_bins", 1),
+                                          ("steer_bins", 257),
                                           ("width", 0), ("width", True), ("depth", 9),
                                           ("depth", 2.0)])
 def test_bad_settings_are_refused_by_name(field, value):
@@ -289,6 +292,23 @@ def test_a_student_with_the_gear_features_reads_them_everywhere(teacher_path, tm
     assert bool(((travel >= 0) & (travel <= 1)).all()) and bool((travel < 1).any())
     agent = load_agent(str(out / "checkpoint_final.pt"))
     agent.make_env(2, 0.9, seed=0).rollout(3, agent.policy)
+
+
+def test_a_student_with_binned_steering_is_fitted_and_driven_by_its_bins(teacher_path,
+                                                                          tmp_path,
+                                                                          coarse_planner):
+    out = tmp_path / "bins"
+    main([teacher_path, "--out", str(out), "--iterations", "2", "--envs", "4", "--steps",
+          "5", "--epochs", "1", "--dagger-epochs", "1", "--yardstick", "2", "--approach",
+          "8", "--steer-bins", "5"])
+    cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
+    assert cfg.model.steer_bins == 5
+    assert checkpoint["trained_by"].startswith("distilled (gear head, binned steering) from")
+    agent = load_agent(str(out / "checkpoint_final.pt"))
+    head = agent.actor.module[0].module[0]
+    assert isinstance(head, BinnedGearHead) and head.bins == 5
+    td = agent.make_env(2, 0.9, seed=0).rollout(3, agent.policy)
+    assert torch.allclose(td["action"], head.action(td["observation_norm"]), atol=1e-5)
 
 
 def test_a_gear_head_is_scored_on_its_gear_and_that_gears_pair_only():

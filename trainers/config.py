@@ -120,6 +120,11 @@ class ModelConfig:
     init_log_std: float = 0.0
     # False: one learned log-std per action (SB3, the paper); True: the actor outputs it.
     state_dependent_std: bool = False
+    # 0: every action is the TanhNormal's. An odd K >= 3 (a distilled gear-head student
+    # only): each gear's steering is a choice among K bins spanning [-1, 1] with an offset
+    # within the bin (trainers.heads.BinnedGearHead), fitted as a classification; PPO cannot
+    # train it (the choice has no gradient).
+    steer_bins: int = 0
 
 
 @dataclass
@@ -295,6 +300,9 @@ def _check(cfg: TrainConfig) -> None:
              "a non-empty list of ints >= 1", cfg.model.hidden)
     # Beyond e^2 the TanhNormal's pre-tanh draws saturate (every action at a bound); beyond
     # e^88 its std overflows float32 and the first batch's actions are NaN.
+    require(cfg.model.steer_bins == 0, "model.steer_bins", "0 for PPO (a binned steering "
+            "is chosen by an argmax, which has no gradient: a distilled student's only)",
+            cfg.model.steer_bins)
     require(finite(cfg.model.init_log_std) and -20 <= cfg.model.init_log_std <= 2,
              "model.init_log_std", "a number in [-20, 2] (the log of the policy's first std)",
              cfg.model.init_log_std)
@@ -333,6 +341,9 @@ def check_agent(cfg: TrainConfig) -> None:
     require(not agent.gear_head or agent.action_exponents is not None,
             "agent.gear_head", "False without agent.action_exponents (the gear picks a pair "
             "of [-1, 1] actions for the power map)", agent.gear_head)
+    bins = cfg.model.steer_bins
+    require(bins == 0 or (bins >= 3 and bins % 2 == 1 and agent.gear_head), "model.steer_bins",
+            "0, or an odd int >= 3 with agent.gear_head (the bins steer each gear)", bins)
 
 
 def _check_dist(cfg: TrainConfig) -> None:

@@ -10,7 +10,8 @@ drives the paper's env with nothing around it.
                                              [--lr-decay] [--width 512] [--depth 3]
                                              [--gear-hold 0.75] [--gear-features]
                                              [--target-lateral 0.25]
-                                             [--target-heading 0.12] [--resume]
+                                             [--target-heading 0.12] [--steer-bins 9]
+                                             [--resume]
 
 TEACHER is a hybrid checkpoint (``results/fast/checkpoint_final.pt``): its docking law and
 brake join the approach planner in the expert (:class:`Teacher`), its network sizes are the
@@ -34,7 +35,11 @@ goal, within the law's settled lateral and heading errors, denser the closer), w
 its output's range, not 2e-4. Where the teacher turns a multi-point manoeuvre, states it
 drives forwards from and states it reverses from look alike: the student outputs a gear
 and a (speed, steer) pair per gear (:class:`torchpark.transforms.actions.GearActionMap`), fitted
-to the label's gear and, for that gear's pair only, to the label.
+to the label's gear and, for that gear's pair only, to the label. The teacher's planner
+steers at five fixed angles and switches between them from state to state: with
+``--steer-bins`` each gear's steering is a choice among that many bins with an offset in the
+bin (:class:`trainers.heads.BinnedGearHead`), fitted as a classification, which keeps the
+angle a regression would average.
 
 The student reads the paper's observation and its goal-frame features, normalised (with
 ``--clearance-features`` the gap along each ray; with ``--position`` the rear axle's (x, y)
@@ -98,7 +103,8 @@ from torchpark.transforms.actions import (
 )
 from trainers.checkpoint import load_trained
 from trainers.config import AgentConfig, EnvConfig, LoggerConfig, TrainConfig, env_configs
-from trainers.utils import build_models, make_base_env, policy_input
+from trainers.heads import BinnedGearHead
+from trainers.utils import NORMALISED, build_models, make_base_env, policy_input
 
 # The student's raw input (before normalisation): the paper's observation, the goal seen
 # from the car (torchpark.GoalFrameFeatures) and optionally the rays' clearance.
@@ -124,7 +130,9 @@ class DistillConfig:
     planner keeps a new gear for that many metres (``PlannerConfig.gear_hold``, following
     the car the student drives); ``gear_features``: the student also reads the gear and its
     travel in it (torchpark.GearTravelFeatures), so a held gear's labels are a function of
-    its input; ``target_lateral`` / ``target_heading``: the planner's
+    its input; ``steer_bins``: 0, or the bins of the student's steering
+    (``ModelConfig.steer_bins``, :class:`trainers.heads.BinnedGearHead`);
+    ``target_lateral`` / ``target_heading``: the planner's
     target, where the law takes over, within that many metres of the slot axis and radians
     of the goal's heading (``PlannerConfig.lateral`` / ``heading``; None: the planner's
     default; a tight target leaves the law little to turn, so the brake seldom acts);
@@ -154,6 +162,7 @@ class DistillConfig:
     retry: float = 0.0
     gear_hold: float = 0.0
     gear_features: bool = False
+    steer_bins: int = 0
     target_lateral: float | None = None
     target_heading: float | None = None
     width: int | None = None
@@ -189,6 +198,9 @@ class DistillConfig:
             require(value is None or (math.isfinite(value) and 0.0 < value <= high),
                     f"DistillConfig.{name}", f"None or finite, in (0, {high:g}] ({unit})",
                     value)
+        require(self.steer_bins == 0 or (3 <= self.steer_bins <= 255
+                                         and self.steer_bins % 2 == 1),
+                "DistillConfig.steer_bins", "0, or an odd int in [3, 255]", self.steer_bins)
         for name, high in (("width", 4096), ("depth", 8)):
             value = getattr(self, name)
             require(value is None or 1 <= value <= high, f"DistillConfig.{name}",
@@ -272,7 +284,7 @@ def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
             action_exponents=[cfg.speed_exponent, cfg.steer_exponent], gear_head=True,
             goal_features=True, clearance_features=cfg.clearance_features,
             gear_features=cfg.gear_features),
-        model=dataclasses.replace(tcfg.model, hidden=hidden),
+        model=dataclasses.replace(tcfg.model, hidden=hidden, steer_bins=cfg.steer_bins),
         logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
     return student
 
@@ -376,10 +388,12 @@ def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.
         epochs: int, cfg: DistillConfig, optim: torch.optim.Optimizer,
         generator: torch.Generator) -> float:
     """``epochs`` passes of minibatch regression of the student's deterministic action (tanh
-    of its loc) on the labels (N, 2) (:func:`imitation_error`, weighted per state by
-    ``weights`` (N,)), the learning rate from ``cfg.lr`` (to 0 along a cosine with
+    of its loc) on the labels (N, 2) (:func:`imitation_error`, or the binned steering's own,
+    :meth:`trainers.heads.BinnedGearHead.imitation_error`; weighted per state by ``weights``
+    (N,)), the learning rate from ``cfg.lr`` (to 0 along a cosine with
     ``cfg.lr_decay``); returns the last epoch's mean loss."""
     net = actor.module[0]
+    body = net.module[0]  # the policy's network before its scale head
     for group in optim.param_groups:
         group["lr"] = cfg.lr
     batches = epochs * -(-inputs.shape[0] // cfg.batch_size)
@@ -390,7 +404,10 @@ def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.
         losses = []
         for index in torch.randperm(inputs.shape[0], generator=generator).split(cfg.batch_size):
             td = norm(TensorDict({STUDENT_INPUT: inputs[index]}, [index.shape[0]]))
-            error = imitation_error(torch.tanh(net(td)["loc"]), labels[index])
+            if isinstance(body, BinnedGearHead):
+                error = body.imitation_error(td[NORMALISED], labels[index])
+            else:
+                error = imitation_error(torch.tanh(net(td)["loc"]), labels[index])
             loss = (weights[index] * error).mean()
             optim.zero_grad()
             loss.backward()
@@ -552,6 +569,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     parts = [name for name, on in (("gear head", True),
                                    ("clearance features", cfg.clearance_features),
                                    ("gear features", cfg.gear_features),
+                                   ("binned steering", cfg.steer_bins > 0),
                                    ("position", cfg.position)) if on]
     made_of = f" ({', '.join(parts)})" if parts else ""
     source = f"the approach planner with the aids of {teacher_path}"

@@ -39,6 +39,7 @@ from torchpark import (
 from torchpark.aids.step import BRAKED
 from torchpark.transforms.sync_free import SyncFreeEnv, SyncFreeRewardScaling, SyncFreeVecNorm
 from trainers.config import ModelConfig, TrainConfig, env_configs
+from trainers.heads import BinnedGearHead
 
 NORMALISED = "observation_norm"  # the normalised observation the networks read
 
@@ -89,11 +90,18 @@ def make_ppo_models(obs_dim: int, action_spec: Bounded, cfg: ModelConfig
     else:
         head = StateIndependentScale(action_dim, cfg.init_log_std)
         out_features = action_dim
-    policy = nn.Sequential(
-        orthogonal_init(MLP(in_features=obs_dim, out_features=out_features,
-                            num_cells=list(cfg.hidden), activation_class=nn.Tanh), 0.01),
-        head,
-    )
+    if cfg.steer_bins:
+        if action_dim != 5:
+            raise ValueError(f"model.steer_bins needs the gear head's 5 actions "
+                             f"(agent.gear_head), got {action_dim}")
+        trunk = orthogonal_init(MLP(in_features=obs_dim,
+                                    out_features=BinnedGearHead.out_features(cfg.steer_bins),
+                                    num_cells=list(cfg.hidden), activation_class=nn.Tanh), 0.01)
+        body = BinnedGearHead(trunk, cfg.steer_bins, cfg.state_dependent_std)
+    else:
+        body = orthogonal_init(MLP(in_features=obs_dim, out_features=out_features,
+                                   num_cells=list(cfg.hidden), activation_class=nn.Tanh), 0.01)
+    policy = nn.Sequential(body, head)
     actor = ProbabilisticActor(
         TensorDictModule(policy, in_keys=[NORMALISED], out_keys=["loc", "scale"]),
         in_keys=["loc", "scale"], spec=action_spec, distribution_class=TanhNormal,
