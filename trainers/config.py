@@ -298,11 +298,11 @@ def _check(cfg: TrainConfig) -> None:
              cfg.optim.lr)
     require(len(cfg.model.hidden) >= 1 and min(cfg.model.hidden) >= 1, "model.hidden",
              "a non-empty list of ints >= 1", cfg.model.hidden)
-    # Beyond e^2 the TanhNormal's pre-tanh draws saturate (every action at a bound); beyond
-    # e^88 its std overflows float32 and the first batch's actions are NaN.
     require(cfg.model.steer_bins == 0, "model.steer_bins", "0 for PPO (a binned steering "
             "is chosen by an argmax, which has no gradient: a distilled student's only)",
             cfg.model.steer_bins)
+    # Beyond e^2 the TanhNormal's pre-tanh draws saturate (every action at a bound); beyond
+    # e^88 its std overflows float32 and the first batch's actions are NaN.
     require(finite(cfg.model.init_log_std) and -20 <= cfg.model.init_log_std <= 2,
              "model.init_log_std", "a number in [-20, 2] (the log of the policy's first std)",
              cfg.model.init_log_std)

@@ -103,7 +103,7 @@ from torchpark.transforms.actions import (
 )
 from trainers.checkpoint import load_trained
 from trainers.config import AgentConfig, EnvConfig, LoggerConfig, TrainConfig, env_configs
-from trainers.heads import BinnedGearHead
+from trainers.heads import BinnedGearHead, imitation_error
 from trainers.utils import NORMALISED, build_models, make_base_env, policy_input
 
 # The student's raw input (before normalisation): the paper's observation, the goal seen
@@ -369,19 +369,6 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tenso
             teacher.forget(td["next", "done"][:, 0])
             td = td_next
     return torch.cat(inputs), torch.cat(labels)
-
-
-def imitation_error(u: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
-    """The squared error (N,) of the student's actions u against the teacher's labels (N, 2)
-    (speed, steer), all in [-1, 1]: the gear head's u (N, 5)
-    (:func:`~torchpark.transforms.actions.gear_select`) on its gear against the label's (+1 where
-    the label's speed >= 0, else -1) and on that gear's pair only against (|speed|, steer):
-    the other gear's pair is not pulled toward an answer it never gives."""
-    forward = label[:, 0] >= 0
-    speed = torch.where(forward, u[:, 1], u[:, 3])
-    steer = torch.where(forward, u[:, 2], u[:, 4])
-    return ((u[:, 0] - torch.where(forward, 1.0, -1.0)).pow(2)
-            + (speed - label[:, 0].abs()).pow(2) + (steer - label[:, 1]).pow(2))
 
 
 def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor,

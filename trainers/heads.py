@@ -1,5 +1,6 @@
-"""The distilled student's binned steering (``ModelConfig.steer_bins``): a gear-head policy
-whose steering is a choice among bins, not a regression.
+"""The distilled student's gear-head errors: :func:`imitation_error`, the regression of its
+five actions on the teacher's labels, and the binned steering (``ModelConfig.steer_bins``),
+a gear-head policy whose steering is a choice among bins, not a regression.
 
 The teacher's planner steers at five fixed angles (0, half and full lock either way) and
 switches between them from one state to the next; a squared-error fit of one tanh output
@@ -21,6 +22,19 @@ CLASS_WEIGHT = 0.1
 OFFSET_WEIGHT = 0.1
 # atanh of the action's bounds would be infinite: the loc stops this short of them.
 EDGE = 1e-6
+
+
+def imitation_error(u: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
+    """The squared error (N,) of the student's actions u against the teacher's labels (N, 2)
+    (speed, steer), all in [-1, 1]: the gear head's u (N, 5)
+    (:func:`~torchpark.transforms.actions.gear_select`) on its gear against the label's (+1 where
+    the label's speed >= 0, else -1) and on that gear's pair only against (|speed|, steer):
+    the other gear's pair is not pulled toward an answer it never gives."""
+    forward = label[:, 0] >= 0
+    speed = torch.where(forward, u[:, 1], u[:, 3])
+    steer = torch.where(forward, u[:, 2], u[:, 4])
+    return ((u[:, 0] - torch.where(forward, 1.0, -1.0)).pow(2)
+            + (speed - label[:, 0].abs()).pow(2) + (steer - label[:, 1]).pow(2))
 
 
 class BinnedGearHead(nn.Module):
@@ -74,19 +88,19 @@ class BinnedGearHead(nn.Module):
 
     def imitation_error(self, z: Tensor, label: Tensor) -> Tensor:
         """The fit's error (N,) at inputs ``z`` (N, D) against the teacher's labels (N, 2)
-        (speed, steer) in [-1, 1]: the gear's squared error against the label's (+1 where its
-        speed >= 0, else -1) and, for that gear only, the speed's squared error, the
-        cross-entropy of the bins against the bin nearest the label's steering and the
-        squared error of that bin's centre + offset against it, in half-bin units
-        (:data:`CLASS_WEIGHT`, :data:`OFFSET_WEIGHT`)."""
+        (speed, steer) in [-1, 1]: :func:`imitation_error`'s gear and speed terms and, for the
+        label's gear only, the cross-entropy of the bins against the bin nearest the label's
+        steering and the squared error of that bin's centre + offset against it, in half-bin
+        units (:data:`CLASS_WEIGHT`, :data:`OFFSET_WEIGHT`)."""
         gear, forward, reverse = self._parts(z)
-        ahead = label[:, 0] >= 0
-        part = torch.where(ahead[:, None], forward, reverse)
-        k = ((label[:, 1] + 1.0) / (2.0 * self.half)).round().long().clamp(0, self.bins - 1)
+        steer = label[:, 1]
+        # the steering columns at the label: imitation_error scores the gear and the speed
+        u = torch.stack((torch.tanh(gear[:, 0]), torch.tanh(forward[:, 0]), steer,
+                         torch.tanh(reverse[:, 0]), steer), -1)
+        part = torch.where((label[:, 0] >= 0)[:, None], forward, reverse)
+        k = ((steer + 1.0) / (2.0 * self.half)).round().long().clamp(0, self.bins - 1)
         logits, offsets = part[:, 1:1 + self.bins], part[:, 1 + self.bins:]
         offset = torch.tanh(offsets).gather(-1, k[:, None])[:, 0] * self.half
-        return ((torch.tanh(gear[:, 0]) - torch.where(ahead, 1.0, -1.0)).pow(2)
-                + (torch.tanh(part[:, 0]) - label[:, 0].abs()).pow(2)
+        return (imitation_error(u, label)
                 + CLASS_WEIGHT * nn.functional.cross_entropy(logits, k, reduction="none")
-                + OFFSET_WEIGHT * (self.centres[k] + offset - label[:, 1]).pow(2)
-                / self.half ** 2)
+                + OFFSET_WEIGHT * (self.centres[k] + offset - steer).pow(2) / self.half ** 2)
