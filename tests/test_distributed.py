@@ -4,6 +4,7 @@ test that starts workers has a timeout."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -24,23 +25,30 @@ from trainers.ppo import train
 from trainers.utils import NORM_DECAY, NORMALISED, make_env, make_ppo_models
 
 ROOT = Path(__file__).resolve().parents[1]
-# One thread per rank on the 2-core CI machine; gloo over loopback.
-ENV = {**os.environ, "OMP_NUM_THREADS": "1", "GLOO_SOCKET_IFNAME": "lo"}
+# One thread per rank on the 2-core CI machine; gloo over loopback; faulthandler in every
+# process (the ranks inherit it), so a run that hangs prints where each of them waits.
+ENV = {**os.environ, "OMP_NUM_THREADS": "1", "GLOO_SOCKET_IFNAME": "lo",
+       "PYTHONFAULTHANDLER": "1"}
 
 
 def run(args: list[str], timeout: float) -> None:
-    """Run ``python args`` in its own process group; past ``timeout`` s kill the whole group
-    (the launcher and its ranks: none is left holding a port) and fail with its output."""
+    """Run ``python args`` in its own process group; past ``timeout`` s abort the whole group
+    (the launcher and its ranks: each prints its threads' stacks, none is left holding a
+    port) and fail with its output."""
     with subprocess.Popen([sys.executable, *args], cwd=ROOT, env=ENV, text=True,
                           stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                           start_new_session=True) as proc:
         try:
             out, err = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            out, err = proc.communicate()
-            pytest.fail(f"{' '.join(args)} ran past {timeout} s (killed with its ranks):\n"
-                        f"{out[-3000:]}{err[-3000:]}")
+            os.killpg(proc.pid, signal.SIGABRT)
+            try:
+                out, err = proc.communicate(timeout=30)
+            finally:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+            pytest.fail(f"{' '.join(args)} ran past {timeout} s (aborted with its ranks; "
+                        f"their stacks last):\n{out[-3000:]}{err[-12000:]}")
     assert proc.returncode == 0, out[-3000:] + err[-3000:]
 
 
