@@ -36,6 +36,7 @@ from trainers.distill import (
     fit,
     imitation_error,
     main,
+    steps_to_collision,
     student_config,
     teacher_planner,
 )
@@ -191,6 +192,9 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("noise", float("nan")), ("lr", -1.0),
                                           ("approach", -1), ("approach", 0.5),
                                           ("approach_weight", 0.0),
+                                          ("collision_weight", 0.0),
+                                          ("collision_weight", float("inf")),
+                                          ("collision_horizon", 0),
                                           ("speed_exponent", 0.5),
                                           ("steer_exponent", float("inf")),
                                           ("dagger_epochs", 0), ("lr_decay", 1),
@@ -309,6 +313,40 @@ def test_a_student_with_binned_steering_is_fitted_and_driven_by_its_bins(teacher
     assert isinstance(head, BinnedGearHead) and head.bins == 5
     td = agent.make_env(2, 0.9, seed=0).rollout(3, agent.policy)
     assert torch.allclose(td["action"], head.action(td["observation_norm"]), atol=1e-5)
+
+
+def test_steps_to_collision_count_back_from_the_colliding_step_within_its_episode():
+    # Row 0 collides at step 2 and starts a new episode that runs past the end; row 1's
+    # first episode ends at step 1 without a collision, its second collides at step 4.
+    collided = torch.tensor([[0, 0], [0, 0], [1, 0], [0, 0], [0, 1]], dtype=torch.bool)
+    done = torch.tensor([[0, 0], [0, 1], [1, 0], [0, 0], [0, 1]], dtype=torch.bool)
+    inf = float("inf")
+    assert torch.equal(steps_to_collision(collided, done),
+                       torch.tensor([[3, inf], [2, inf], [1, 3], [inf, 2], [inf, 1]]))
+
+
+def test_a_rollout_counts_the_steps_to_the_drivers_collisions(teacher_path):
+    # A driver that floors it forwards, turning a little, at 90 %: into the parked cars.
+    scfg = student_config(teacher_path, DistillConfig())
+    base = make_base_env(scfg, training=True, num_envs=8, seed=0)
+    base.occupancy = 0.9
+    inputs = policy_input(scfg, base)
+    env = TransformedEnv(base, Compose(*inputs))
+    teacher = Teacher(teacher_path, env, planner=COARSE_PLAN)
+    floor_it = torch.tensor([1.0, 1.0, 0.3, 1.0, 0.0])  # gear, (speed, steer) per gear
+
+    def driver(td):
+        return td.set("action", floor_it.expand(td.shape[0], 5))
+
+    steps = 40
+    x, y, ahead = distill_module.rollout(env, driver, teacher, torch.tensor([3.0, 1.0]), steps,
+                                         False, 0.0, torch.Generator().manual_seed(0))
+    assert x.shape[0] == y.shape[0] == ahead.shape[0] == steps * 8
+    ahead = ahead.reshape(steps, 8)
+    assert (ahead == 1).sum() >= 4  # collisions
+    # Within a row the count runs down by one a step to the colliding step's 1.
+    before = ahead[:-1].isfinite() & (ahead[:-1] > 1)
+    assert torch.equal(ahead[1:][before], ahead[:-1][before] - 1)
 
 
 def test_a_gear_head_is_scored_on_its_gear_and_that_gears_pair_only():

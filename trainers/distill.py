@@ -11,7 +11,8 @@ drives the paper's env with nothing around it.
                                              [--gear-hold 0.75] [--gear-features]
                                              [--target-lateral 0.25]
                                              [--target-heading 0.12] [--steer-bins 9]
-                                             [--resume]
+                                             [--collision-weight 1]
+                                             [--collision-horizon 10] [--resume]
 
 TEACHER is a hybrid checkpoint (``results/fast/checkpoint_final.pt``): its docking law and
 brake join the approach planner in the expert (:class:`Teacher`), its network sizes are the
@@ -24,7 +25,9 @@ goal: the teacher in the first (behaviour cloning), the current student in the l
 fitted to all of it (DAgger: Ross, Gordon and Bagnell, 2011): ``epochs`` passes after the
 first iteration, ``dagger_epochs`` after each later one. Half the rows drive with Gaussian
 noise on the control (DART: Laskey et al., 2017), so the data holds the corrections back to
-the teacher's path.
+the teacher's path. With ``--collision-weight W`` the states from which the driver collided
+within ``--collision-horizon`` steps weigh W in the fit: the student's own collisions,
+relabelled, count more than a state it passes.
 
 The last millimetre asks for speeds of mm/s, a ten-thousandth of the range, and a steering
 that lines the car up to 0.1 deg. The first iteration therefore also labels ``approach``
@@ -119,6 +122,8 @@ class DistillConfig:
     episodes per check after each iteration; ``approach``: final-approach states labelled
     per level in the first iteration (0: none), drawn up to ``approach_reach`` m behind the
     goal and weighted ``approach_weight`` times a rollout state in the fit;
+    ``collision_weight``: the weight of the rollout states from which the driver collides
+    within ``collision_horizon`` steps (its own collisions relabelled; 1: as any other);
     ``speed_exponent`` / ``steer_exponent``: the student's action map (u in [-1, 1] drives
     high * sign(u) |u| ** exponent); ``clearance_features``: the student also reads the gap
     along each LIDAR ray (torchpark.ClearanceFeatures); ``position``: and its position in
@@ -153,6 +158,8 @@ class DistillConfig:
     approach: int = 32768
     approach_reach: float = 2.0
     approach_weight: float = 1.0
+    collision_weight: float = 1.0
+    collision_horizon: int = 10
     lr_decay: bool = False
     speed_exponent: float = 3.0
     steer_exponent: float = 1.0
@@ -174,13 +181,13 @@ class DistillConfig:
         check_types(self)
         for name, high in (("iterations", 1000), ("envs", 65536), ("steps", 100_000),
                            ("epochs", 1000), ("dagger_epochs", 1000), ("batch_size", 1 << 20),
-                           ("yardstick", 65536)):
+                           ("yardstick", 65536), ("collision_horizon", 1000)):
             value = getattr(self, name)
             require(1 <= value <= high, f"DistillConfig.{name}", f"an int in [1, {high}]",
                     value)
         require(0 <= self.approach <= 1 << 20, "DistillConfig.approach",
                 "an int in [0, 1048576]", self.approach)
-        for name in ("lr", "approach_reach", "approach_weight"):
+        for name in ("lr", "approach_reach", "approach_weight", "collision_weight"):
             positive(f"DistillConfig.{name}", getattr(self, name))
         for name in ("speed_exponent", "steer_exponent"):
             value = getattr(self, name)
@@ -339,17 +346,19 @@ def approach_states(env: TransformedEnv, features: Transform, teacher: Teacher,
 
 def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tensor, steps: int,
             teacher_drives: bool, noise: float, generator: torch.Generator
-            ) -> tuple[torch.Tensor, torch.Tensor]:
+            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``steps`` steps of dt of ``env`` (every row reset first), driven by the teacher's
     labels or the student's deterministic actions, noisy on every other row (Gaussian,
     ``noise`` times the env's bounds, added to the env's action). Returns the student's raw
-    inputs (steps x N, D) and the teacher's labels there in the student's units (u, the
+    inputs (steps x N, D), the teacher's labels there in the student's units (u, the
     (speed, steer) its power map with ``exponents`` turns into them, which the gear head
-    picks by :func:`~torchpark.transforms.actions.gear_select`)."""
+    picks by :func:`~torchpark.transforms.actions.gear_select`) and, per state, the steps
+    of dt to the collision that ends its episode (steps x N,; inf where the episode does
+    not end in one within the rollout: :func:`steps_to_collision`)."""
     n = env.base_env.num_envs
     high = env.base_env.action_spec.space.high[0]
     noisy = (torch.arange(n, device=env.device) % 2 == 1)[:, None]
-    inputs, labels = [], []
+    inputs, labels, collided, done = [], [], [], []
     teacher.forget(torch.ones(n, dtype=torch.bool, device=env.device))
     td = env.reset()
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
@@ -367,8 +376,26 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tenso
             td["action"] = gear_inverse(action)
             td, td_next = env.step_and_maybe_reset(td)
             teacher.forget(td["next", "done"][:, 0])
+            collided.append(td["next", "collision"][:, 0])
+            done.append(td["next", "done"][:, 0])
             td = td_next
-    return torch.cat(inputs), torch.cat(labels)
+    ahead = steps_to_collision(torch.stack(collided), torch.stack(done))
+    return torch.cat(inputs), torch.cat(labels), ahead.reshape(-1)
+
+
+def steps_to_collision(collided: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
+    """Per state of a rollout, the steps of dt until its episode ends in a collision.
+
+    ``collided`` / ``done`` (T, N) bool: whether the step from state t of row n collided /
+    ended the episode. Returns (T, N) float: 1 where the step from the state collides, k + 1
+    where the state after it is k steps from one in the same episode, inf where the episode
+    ends without one or runs past the rollout's end."""
+    ahead = torch.full_like(collided[0], math.inf, dtype=torch.float32)
+    out = []
+    for hit, ended in zip(collided.flip(0), done.flip(0), strict=True):  # back in time
+        ahead = torch.where(hit, 1.0, torch.where(ended, math.inf, ahead + 1.0))
+        out.append(ahead)
+    return torch.stack(out).flip(0)
 
 
 def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor,
@@ -569,9 +596,10 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
         batches = []
         for level in PAPER_LEVELS:
             base.occupancy = level
-            x, y = rollout(env, actor, teacher, exponents, cfg.steps, iteration == 0,
-                                   cfg.noise, generator)
-            batches.append((x, y, torch.ones(x.shape[0], device=x.device)))
+            x, y, ahead = rollout(env, actor, teacher, exponents, cfg.steps, iteration == 0,
+                                  cfg.noise, generator)
+            batches.append((x, y, torch.where(ahead <= cfg.collision_horizon,
+                                              cfg.collision_weight, 1.0)))
             frames += x.shape[0]
         if iteration == 0:
             norm.freeze()  # the teacher's states set the student's input scale
