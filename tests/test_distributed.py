@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import psutil
 import pytest
 import torch
 from tensordict import TensorDict
@@ -32,23 +33,27 @@ ENV = {**os.environ, "OMP_NUM_THREADS": "1", "GLOO_SOCKET_IFNAME": "lo",
 
 
 def run(args: list[str], timeout: float) -> None:
-    """Run ``python args`` in its own process group; past ``timeout`` s abort the whole group
-    (the launcher and its ranks: each prints its threads' stacks, none is left holding a
-    port) and fail with its output."""
+    """Run ``python args``; past ``timeout`` s abort it and every process it started (torchrun
+    starts its ranks in sessions of their own): each prints its threads' stacks, those still
+    alive 20 s later are killed (none is left holding a port or the output's pipe), and the
+    test fails with the output."""
     with subprocess.Popen([sys.executable, *args], cwd=ROOT, env=ENV, text=True,
-                          stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                          start_new_session=True) as proc:
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE) as proc:
         try:
             out, err = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGABRT)
-            try:
-                out, err = proc.communicate(timeout=30)
-            finally:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(proc.pid, signal.SIGKILL)
-            pytest.fail(f"{' '.join(args)} ran past {timeout} s (aborted with its ranks; "
-                        f"their stacks last):\n{out[-3000:]}{err[-12000:]}")
+            launcher = psutil.Process(proc.pid)
+            tree = [launcher, *launcher.children(recursive=True)]
+            for process in tree:
+                with contextlib.suppress(psutil.NoSuchProcess):
+                    process.send_signal(signal.SIGABRT)
+            _, alive = psutil.wait_procs(tree, timeout=20)
+            for process in alive:
+                with contextlib.suppress(psutil.NoSuchProcess):
+                    process.kill()
+            out, err = proc.communicate()
+            pytest.fail(f"{' '.join(args)} ran past {timeout} s (aborted with every process "
+                        f"it started; their stacks last):\n{out[-3000:]}{err[-20000:]}")
     assert proc.returncode == 0, out[-3000:] + err[-3000:]
 
 
