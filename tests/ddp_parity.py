@@ -72,6 +72,7 @@ def main() -> None:
     loss_fn = DistributedDataParallel(loss) if mode == "ddp" else loss
     params = steps(loss, batch, world.rank, world.size, loss_fn)
     torch.save(params, directory / f"{mode}_rank{world.rank}.pt")
+    del loss_fn  # DDP goes before its process group (trainers.distributed.leave)
     leave(world)
 
 

@@ -80,7 +80,10 @@ def join(world_size: int, device: str) -> World:
 
 
 def leave(world: World) -> None:
-    """Leave the process group once every rank is done with it."""
+    """Leave the process group once every rank is done with it. Every
+    ``DistributedDataParallel`` on the group must be gone by then (no reference left): one
+    freed after ``destroy_process_group`` takes the group down with it, when the other ranks
+    may have exited, and that can hang (seen in about one run of ten of two gloo ranks)."""
     if world.parallel and dist.is_initialized():
         dist.barrier()
         dist.destroy_process_group()

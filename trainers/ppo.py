@@ -229,7 +229,7 @@ def _train(cfg: TrainConfig, resume: str | None, world: World, init: str | None,
             collect_start = time.perf_counter()
     final = save("checkpoint_final.pt")
     collection.shutdown()
-    del loss_fn  # DDP's reducer goes before its process group
+    del update, loss_fn  # DDP goes before its process group (trainers.distributed.leave)
     leave(world)
     return final
 
