@@ -390,12 +390,12 @@ def steps_to_collision(collided: torch.Tensor, done: torch.Tensor) -> torch.Tens
     ended the episode. Returns (T, N) float: 1 where the step from the state collides, k + 1
     where the state after it is k steps from one in the same episode, inf where the episode
     ends without one or runs past the rollout's end."""
-    ahead = torch.full_like(collided[0], math.inf, dtype=torch.float32)
-    out = []
-    for hit, ended in zip(collided.flip(0), done.flip(0), strict=True):  # back in time
-        ahead = torch.where(hit, 1.0, torch.where(ended, math.inf, ahead + 1.0))
-        out.append(ahead)
-    return torch.stack(out).flip(0)
+    steps = collided.shape[0]
+    t = torch.arange(steps, device=collided.device)[:, None]
+    ends = torch.where(collided | done, t, steps)
+    end = ends.flip(0).cummin(0).values.flip(0)  # the step that ends each state's episode
+    hit = collided.gather(0, end.clamp(max=steps - 1)) & (end < steps)
+    return torch.where(hit, (end - t + 1).float(), math.inf)
 
 
 def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor,

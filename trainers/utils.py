@@ -90,12 +90,13 @@ def make_ppo_models(obs_dim: int, action_spec: Bounded, cfg: ModelConfig
     else:
         head = StateIndependentScale(action_dim, cfg.init_log_std)
         out_features = action_dim
-    if cfg.steer_bins and action_dim != 5:
-        raise ValueError(f"model.steer_bins needs the gear head's 5 actions (agent.gear_head), "
-                         f"got {action_dim}")
-    body = orthogonal_init(MLP(in_features=obs_dim, out_features=BinnedGearHead.out_features(
-        cfg.steer_bins) if cfg.steer_bins else out_features, num_cells=list(cfg.hidden),
-        activation_class=nn.Tanh), 0.01)
+    if cfg.steer_bins:
+        if action_dim != 5:
+            raise ValueError(f"model.steer_bins needs the gear head's 5 actions "
+                             f"(agent.gear_head), got {action_dim}")
+        out_features = BinnedGearHead.out_features(cfg.steer_bins)
+    body = orthogonal_init(MLP(in_features=obs_dim, out_features=out_features,
+                               num_cells=list(cfg.hidden), activation_class=nn.Tanh), 0.01)
     if cfg.steer_bins:
         body = BinnedGearHead(body, cfg.steer_bins, cfg.state_dependent_std)
     policy = nn.Sequential(body, head)
