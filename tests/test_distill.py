@@ -304,10 +304,12 @@ def test_a_student_with_binned_steering_is_fitted_and_driven_by_its_bins(teacher
     out = tmp_path / "bins"
     main([teacher_path, "--out", str(out), "--iterations", "2", "--envs", "4", "--steps",
           "5", "--epochs", "1", "--dagger-epochs", "1", "--yardstick", "2", "--approach",
-          "8", "--steer-bins", "5"])
+          "8", "--steer-bins", "5", "--collision-weight", "4", "--collision-horizon", "3"])
     cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
     assert cfg.model.steer_bins == 5
     assert checkpoint["trained_by"].startswith("distilled (gear head, binned steering) from")
+    assert ("2 iteration(s) (DAgger after the first; the states up to 3 steps before its own "
+            "collisions weighted 4)") in checkpoint["trained_by"]
     agent = load_agent(str(out / "checkpoint_final.pt"))
     head = agent.actor.module[0].module[0]
     assert isinstance(head, BinnedGearHead) and head.bins == 5

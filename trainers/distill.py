@@ -591,6 +591,10 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
         source += f" (its law creeping to the goal within {cfg.settle:g} m"
         source += f", retrying {cfg.retry:g} m back where the test cannot pass)" if cfg.retry \
             else ")"
+    dagger = "DAgger after the first"
+    if cfg.collision_weight != 1.0:
+        dagger += (f"; the states up to {cfg.collision_horizon} steps before its own "
+                   f"collisions weighted {cfg.collision_weight:g}")
     started = time.perf_counter() - elapsed
     for iteration in range(first, cfg.iterations):
         batches = []
@@ -627,7 +631,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
         checkpoint = {"config": dataclasses.asdict(scfg), "frames": frames,
                       "actor": actor.state_dict(), "obs_norm": norm.state_dict(),
                       "trained_by": f"distilled{made_of} from {source}: "
-                                    f"{iteration + 1} iteration(s) (DAgger after the first), "
+                                    f"{iteration + 1} iteration(s) ({dagger}), "
                                     f"{frames:,} labelled frames and {approach:,} "
                                     f"final-approach states"}
         save_torch(checkpoint, out / "checkpoint_final.pt")
