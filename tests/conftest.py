@@ -2,7 +2,8 @@
 helpers (placing the car, stepping, random actions, box polygons).
 
 ``python -m pytest --device cuda`` runs the tests that take the ``device`` fixture on that
-device (the rest of the suite runs as usual); the default is the CPU.
+device (the rest of the suite runs as usual); the default is the CPU. ``--device-only``
+runs only those tests (what a lent GPU has to show, and nothing the CPU already did).
 """
 
 from __future__ import annotations
@@ -21,6 +22,16 @@ from torchpark.sim.layout import build_layout
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--device", default="cpu",
                      help="torch device for the tests that take one, e.g. cuda (default: cpu)")
+    parser.addoption("--device-only", action="store_true",
+                     help="run only the tests that take the device fixture")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if not config.getoption("--device-only"):
+        return
+    keep = [item for item in items if "device" in getattr(item, "fixturenames", ())]
+    config.hook.pytest_deselected(items=[item for item in items if item not in keep])
+    items[:] = keep
 
 
 @pytest.fixture(scope="session")

@@ -6,6 +6,9 @@ rollout."""
 from __future__ import annotations
 
 import warnings
+from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import pytest
 import torch
@@ -17,6 +20,23 @@ from trainers.collection import RankCollection
 from trainers.config import load_config
 from trainers.distributed import World
 from trainers.utils import build_models
+
+
+@contextmanager
+def synchronisations() -> Iterator[list[str]]:
+    """The host synchronisations CUDA reports inside the block
+    (``torch.cuda.set_sync_debug_mode``), each as the ``file:line`` of the Python code that
+    made it: a failing count says where they come from."""
+    sites: list[str] = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        torch.cuda.set_sync_debug_mode("warn")
+        try:
+            yield sites
+        finally:
+            torch.cuda.set_sync_debug_mode("default")
+            sites.extend(f"{w.filename}:{w.lineno}" for w in caught
+                         if "synchroniz" in str(w.message))
 
 
 @pytest.fixture
@@ -32,18 +52,15 @@ def test_step_and_maybe_reset_syncs_only_when_the_host_reads_the_ring(cuda):
     assert env.reset_in_step  # the default on CUDA
     td = env.reset()
     actions = random_actions(1024, 48, 0).to(cuda)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        torch.cuda.set_sync_debug_mode("warn")
-        try:
-            for action in actions:
-                td = env.step_and_maybe_reset(td.set("action", action))[1]
-        finally:
-            torch.cuda.set_sync_debug_mode("default")
-    syncs = sum("synchroniz" in str(w.message) for w in caught)
-    assert syncs <= 48 // 8 + 1
+    with synchronisations() as sites:
+        for action in actions:
+            td = env.step_and_maybe_reset(td.set("action", action))[1]
+    assert len(sites) <= 48 // 8 + 1, Counter(sites).most_common()
 
 
+@pytest.mark.xfail(strict=True, reason="on an H200 (2026-11-28) the first replay read a state "
+                   "field an earlier replay wrote (CUDA Graph Trees expire it): "
+                   "research/experiments.md, the second GPU lease")
 def test_the_captured_path_gives_the_compiled_paths_rollout(cuda):
     """mode="reduce-overhead" (a CUDA graph replayed per step) against the same graph
     launched kernel by kernel: the same kernels, the same rollout bit for bit."""
@@ -59,6 +76,8 @@ def test_the_one_graph_path_on_cuda_gives_the_host_paths_rollout(cuda):
     assert_same_rollout(rollout(ring, 50, seed=3), rollout(host, 50, seed=3))
 
 
+@pytest.mark.xfail(strict=True, reason="on an H200 (2026-11-28): 52 synchronisations in 3 "
+                   "batches, from outside the env; --runxfail names their lines")
 def test_the_gpu_presets_collector_syncs_once_per_batch(cuda):
     """The trainer's collector (the gpu preset: the env resetting in its step, the sync-free
     transforms, the policy compiled) at 1,024 envs: at most one synchronisation per batch of
@@ -70,13 +89,8 @@ def test_the_gpu_presets_collector_syncs_once_per_batch(cuda):
     collector = RankCollection(cfg, actor.to(cuda), World(device=cuda), 10 ** 9).collector
     batches = iter(collector)
     next(batches)  # the first reset, draws and compilation
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        torch.cuda.set_sync_debug_mode("warn")
-        try:
-            for _ in range(3):
-                next(batches)
-        finally:
-            torch.cuda.set_sync_debug_mode("default")
+    with synchronisations() as sites:
+        for _ in range(3):
+            next(batches)
     collector.shutdown()
-    assert sum("synchroniz" in str(w.message) for w in caught) <= 3
+    assert len(sites) <= 3, Counter(sites).most_common()
