@@ -58,12 +58,11 @@ def test_step_and_maybe_reset_syncs_only_when_the_host_reads_the_ring(cuda):
     assert len(sites) <= 48 // 8 + 1, Counter(sites).most_common()
 
 
-@pytest.mark.xfail(strict=True, reason="on an H200 (2026-11-28) the first replay read a state "
-                   "field an earlier replay wrote (CUDA Graph Trees expire it): "
-                   "research/experiments.md, the second GPU lease")
 def test_the_captured_path_gives_the_compiled_paths_rollout(cuda):
-    """mode="reduce-overhead" (a CUDA graph replayed per step) against the same graph
-    launched kernel by kernel: the same kernels, the same rollout bit for bit."""
+    """mode="reduce-overhead" (a CUDA graph replayed per step, its outputs copied out of the
+    graphs' memory) against the same graph launched kernel by kernel: the same kernels, the
+    same rollout bit for bit. Failed on an H200 before the copies (research/experiments.md,
+    the second GPU lease); not run on a GPU since."""
     compiled = ParkingEnv(512, seed=1, device=cuda, config=BUSY, compile_step=True)
     captured = ParkingEnv(512, seed=1, device=cuda, config=BUSY, compile_step=True,
                           compile_kwargs={"mode": "reduce-overhead"})

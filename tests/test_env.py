@@ -17,6 +17,7 @@ from torchrl.envs import EnvBase, InitTracker, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
 from tests.conftest import act, random_actions
+from tests.test_ring import BUSY, assert_same_rollout, rollout
 from torchpark import (
     AidsConfig,
     BrakeConfig,
@@ -28,6 +29,8 @@ from torchpark import (
     ParkingEnv,
     RewardConfig,
 )
+from torchpark.env import _outputs_owned
+from torchpark.sim.ring import Counters
 from torchpark.sim.step import ParkingState
 
 
@@ -191,6 +194,34 @@ def test_compiled_step_is_one_graph_and_matches_eager(config, aids, device):
     assert torch.equal(eager["collision"], compiled["collision"])
     assert torch.allclose(eager["observation"], compiled["observation"], atol=1e-4)
     assert torch.allclose(eager["reward"], compiled["reward"], atol=1e-3)
+
+
+def test_a_captured_functions_outputs_are_copied_whole():
+    """What a function compiled to replay CUDA graphs returns (tuples, NamedTuples, dicts of
+    tensors, other leaves) comes back with the same structure and values in fresh tensors."""
+    returned = []
+
+    def function(x):
+        returned.append((Counters(x, x + 1), {"twice": 2 * x}, "kept"))
+        return returned[-1]
+
+    x = torch.arange(4.0)
+    got = _outputs_owned(function)(x)
+    (counters, twice, word), (counters0, twice0, _) = got, returned[0]
+    assert type(counters) is Counters and word == "kept" and set(twice) == {"twice"}
+    for copy, original in ((counters.block, counters0.block), (counters.used, counters0.used),
+                           (twice["twice"], twice0["twice"])):
+        assert torch.equal(copy, original) and copy.data_ptr() != original.data_ptr()
+
+
+def test_a_capturing_compile_mode_keeps_the_compiled_rollout():
+    """compile_kwargs={"mode": "reduce-overhead"} (CUDA graphs on CUDA; on a CPU the compiled
+    graphs as they are): with every call's outputs copied, the same rollout as the plain
+    compiled env, resets inside the step included. On CUDA: tests/test_cuda.py."""
+    plain, captured = (ParkingEnv(16, seed=1, config=BUSY, compile_step=True, reset_in_step=True,
+                                  blocks_ahead=2, compile_kwargs=kwargs)
+                       for kwargs in (None, {"mode": "reduce-overhead"}))
+    assert_same_rollout(rollout(captured, 20, seed=2), rollout(plain, 20, seed=2))
 
 
 @pytest.mark.parametrize("aids", [None, AidsConfig(action_repeat=2, brake=BrakeConfig(),

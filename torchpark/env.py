@@ -26,11 +26,12 @@ import dataclasses
 import math
 import warnings
 from collections.abc import Callable, Sequence
-from functools import partial
+from functools import partial, wraps
 
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
+from torch.utils._pytree import tree_flatten, tree_unflatten
 from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
@@ -76,6 +77,37 @@ def _allow_recompiles() -> None:
     config.recompile_limit = max(config.recompile_limit, _RECOMPILE_LIMIT)
     config.accumulated_recompile_limit = max(config.accumulated_recompile_limit,
                                              4 * _RECOMPILE_LIMIT)
+
+
+# torch.compile modes that replay the graph as a CUDA graph (CUDA Graph Trees).
+_CAPTURING_MODES = ("reduce-overhead", "max-autotune")
+
+
+def _captures(compile_kwargs: dict) -> bool:
+    """Whether ``torch.compile(**compile_kwargs)`` replays its graphs as CUDA graphs."""
+    return (compile_kwargs.get("mode") in _CAPTURING_MODES
+            or bool(compile_kwargs.get("options", {}).get("triton.cudagraphs")))
+
+
+def _outputs_owned(fn: Callable) -> Callable:
+    """``fn`` (a function compiled to replay as a CUDA graph) with its outputs copied out of
+    the graphs' memory pool after each call: fresh tensors, filled by one
+    ``torch._foreach_copy_``. A replay overwrites the outputs of the last (CUDA Graph Trees
+    expire them), and the env keeps its state and hands its outputs to the caller across
+    calls; every output copied, nothing the env holds lives in the pool."""
+
+    @wraps(fn)
+    def call(*args):
+        torch.compiler.cudagraph_mark_step_begin()
+        leaves, spec = tree_flatten(fn(*args))
+        tensors = [leaf for leaf in leaves if isinstance(leaf, torch.Tensor)]
+        owned = [torch.empty_like(t) for t in tensors]
+        torch._foreach_copy_(owned, tensors)
+        copies = iter(owned)
+        return tree_unflatten([next(copies) if isinstance(leaf, torch.Tensor) else leaf
+                               for leaf in leaves], spec)
+
+    return call
 
 
 def compiler_found() -> bool:
@@ -169,7 +201,10 @@ class ParkingEnv(EnvBase):
             faster on CPU); the first step then takes tens of seconds to compile.
             Without a C++ compiler (:func:`compiler_found`) the env warns once and runs
             eager; :attr:`compiled` says which.
-        compile_kwargs: passed to ``torch.compile``.
+        compile_kwargs: passed to ``torch.compile``. With a mode that replays CUDA graphs
+            (``mode="reduce-overhead"``) the env copies each replay's outputs out of the
+            graphs' memory (one ``torch._foreach_copy_``), since the next replay overwrites
+            them.
         validate_actions: raise on non-finite actions (the state is then left as it was). The
             test runs inside the step; reading its bool is free on CPU, a synchronisation on
             CUDA. With ``reset_in_step`` it is read with the ring's counters instead, once
@@ -274,6 +309,8 @@ class ParkingEnv(EnvBase):
             _allow_recompiles()
             kwargs = {"fullgraph": True, **(compile_kwargs or {})}
             functions = [torch.compile(f, **kwargs) for f in functions]
+            if _captures(kwargs):
+                functions = [_outputs_owned(f) for f in functions]
         # The step; the reset's work: N new episodes at a time (lots, start poses, first
         # observations), drawn ahead and handed out in order, each once, to the rows that
         # reset; with reset_in_step, the step and that reset as one function, the reset of a
