@@ -205,9 +205,10 @@ def test_a_start_checkpoint_with_another_agent_or_a_resume_beside_it_is_refused(
 
 
 def test_the_gpu_preset_is_fast_at_a_gpu_size_and_reads_its_env_once_per_batch():
-    """``gpu`` differs from ``fast`` in the env's size and device, the batch, the minibatch and
-    the compile switches only, so its agent is fast's; its env, resetting inside its step,
-    holds one block of new episodes per step of a batch (the host reads it once a batch)."""
+    """``gpu`` differs from ``fast`` in the env's size and device and the compile switches
+    only: its agent, batch and minibatch are fast's (wider ones learned less in 12M frames);
+    its env, resetting inside its step, holds one block of new episodes per step of a batch
+    (the host reads it once a batch)."""
     import trainers.utils
 
     def leaves(cfg: TrainConfig) -> dict:
@@ -225,9 +226,8 @@ def test_the_gpu_preset_is_fast_at_a_gpu_size_and_reads_its_env_once_per_batch()
     gpu = load_config("gpu", [] if torch.cuda.is_available() else ["env.device=cpu"])
     fast, ours = leaves(load_config("fast")), leaves(gpu)
     differs = {key for key in fast if fast[key] != ours[key]}
-    assert differs <= {"env.num_envs", "env.device", "collector.frames_per_batch",
-                       "loss.mini_batch_size", "optim.compile_update", "logger.exp_name"}
-    assert {"env.num_envs", "collector.frames_per_batch", "optim.compile_update"} <= differs
+    assert differs <= {"env.num_envs", "env.device", "optim.compile_update", "logger.exp_name"}
+    assert {"env.num_envs", "optim.compile_update"} <= differs
     on_cpu = dataclasses.replace(gpu, env=dataclasses.replace(gpu.env, reset_in_step=True))
     env = trainers.utils.make_base_env(on_cpu, training=False, num_envs=4)
     assert env.reset_in_step and env._blocks == 8 + 1  # 8 env steps per batch
