@@ -12,6 +12,13 @@
 #      final checkpoint (gzipped, split under the 16 MB a file that comes back);
 #   3. the tests that take the device fixture, the xfailed ones run (--runxfail: the sync
 #      test's message names the lines the syncs come from), in the time left.
+# The wheels (the device has torch 2.11 but none of these), fetched here before the lease:
+#   for p in torchrl==0.14.1 tensordict==0.14.3 hoptorch==0.1.4 pyvers==0.2.3 orjson \
+#       importlib_metadata gymnasium==1.4.0 farama-notifications omegaconf==2.4.0 shapely==2.2.0
+#   do python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
+#       --implementation cp --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 \
+#       --platform manylinux2014_x86_64 --platform any -d .whl $p; done
+# Call: run(command="bash research/gpu_lease.sh", carry=[".whl"], timeout_s=600).
 set -u
 T0=$(date +%s)
 BUDGET=${BUDGET:-575}
