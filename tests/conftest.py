@@ -29,8 +29,10 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     if not config.getoption("--device-only"):
         return
-    keep = [item for item in items if "device" in getattr(item, "fixturenames", ())]
-    config.hook.pytest_deselected(items=[item for item in items if item not in keep])
+    keep, drop = [], []
+    for item in items:
+        (keep if "device" in getattr(item, "fixturenames", ()) else drop).append(item)
+    config.hook.pytest_deselected(items=drop)
     items[:] = keep
 
 

@@ -29,7 +29,7 @@ from torchpark import (
     ParkingEnv,
     RewardConfig,
 )
-from torchpark.env import _outputs_owned
+from torchpark.env import _captures, _outputs_owned
 from torchpark.sim.ring import Counters
 from torchpark.sim.step import ParkingState
 
@@ -212,6 +212,15 @@ def test_a_captured_functions_outputs_are_copied_whole():
     for copy, original in ((counters.block, counters0.block), (counters.used, counters0.used),
                            (twice["twice"], twice0["twice"])):
         assert torch.equal(copy, original) and copy.data_ptr() != original.data_ptr()
+
+
+@pytest.mark.parametrize("kwargs, captures", [
+    ({}, False), ({"mode": "default"}, False), ({"options": None}, False),
+    ({"mode": "reduce-overhead"}, True), ({"mode": "max-autotune"}, True),
+    ({"options": {"triton.cudagraphs": True}}, True)])
+def test_the_compile_modes_that_replay_cuda_graphs_are_told_apart(kwargs, captures):
+    assert _captures(kwargs) is captures
+    ParkingEnv(2, compile_step=True, compile_kwargs=kwargs)  # builds (compiles on first use)
 
 
 def test_a_capturing_compile_mode_keeps_the_compiled_rollout():

@@ -86,7 +86,7 @@ _CAPTURING_MODES = ("reduce-overhead", "max-autotune")
 def _captures(compile_kwargs: dict) -> bool:
     """Whether ``torch.compile(**compile_kwargs)`` replays its graphs as CUDA graphs."""
     return (compile_kwargs.get("mode") in _CAPTURING_MODES
-            or bool(compile_kwargs.get("options", {}).get("triton.cudagraphs")))
+            or bool((compile_kwargs.get("options") or {}).get("triton.cudagraphs")))
 
 
 def _outputs_owned(fn: Callable) -> Callable:
