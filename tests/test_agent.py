@@ -21,8 +21,8 @@ CHECKPOINTS = [ROOT / "results" / "policy_alone" / "checkpoint_best.pt",
 
 def _gym_episode(agent, occupancy: float, seed: int):
     """One Gymnasium episode driven by ``agent.predict`` (its state passed back, as SB3's
-    recurrent predict: None for an agent without gear features): the rear-axle poses after
-    each step (from the reset on) and the last info."""
+    recurrent predict: None for an agent without gear features or scan memory): the
+    rear-axle poses after each step (from the reset on) and the last info."""
     env = agent.gym_env(occupancy=occupancy, seed=seed)
     obs, info = env.reset()
     base = env.unwrapped.env
@@ -31,7 +31,8 @@ def _gym_episode(agent, occupancy: float, seed: int):
     state = None
     while not (terminated or truncated):
         action, state = agent.predict(obs, info, state=state)
-        assert (state is None) == (not agent.config.agent.gear_features)
+        recurrent = agent.config.agent.gear_features or agent.config.agent.scan_memory > 0
+        assert (state is None) == (not recurrent)
         assert action.shape == (2,) and np.abs(action).max() <= 1
         obs, _, terminated, truncated, info = env.step(action)
         poses.append(base.state.pose[0].clone())
@@ -75,6 +76,21 @@ def test_predict_takes_a_batch_and_names_what_it_needs():
     assert not np.array_equal(sampled, actions) and np.abs(sampled).max() <= 1
 
 
+def rows_predict_as_alone(agent, going_obs, fresh_obs, info, state):
+    """A batch of two rows, the first going on from ``state``, the second flagged by
+    episode_start as a new episode's first (both at ``info``'s position): each row's action
+    and state are those it gets alone. Returns the single predictions (going on, fresh)."""
+    batch = np.stack([going_obs, fresh_obs])
+    pos = {"position": np.stack([info["position"]] * 2)}
+    actions, states = agent.predict(batch, pos, state=np.stack([state, state]),
+                                    episode_start=np.array([False, True]))
+    going_on = agent.predict(going_obs, info, state=state)
+    fresh = agent.predict(fresh_obs, info)
+    np.testing.assert_allclose(actions, np.stack([going_on[0], fresh[0]]), atol=1e-5)
+    np.testing.assert_array_equal(states, np.stack([going_on[1], fresh[1]]))
+    return going_on, fresh
+
+
 def test_predict_carries_the_gear_state_row_by_row():
     """An agent with the gear features (the committed policy alone): a batch's state is its
     rows' states, a row flagged by episode_start starts afresh, and a state of another shape
@@ -89,23 +105,16 @@ def test_predict_carries_the_gear_state_row_by_row():
         obs, _r, _t, _u, info = env.step(action)
     moving = obs.copy()
     moving[4] = 1.5  # the row's speed after one more step: it drives on in its gear
-    batch = np.stack([obs, moving])
-    pos = {"position": np.stack([info["position"]] * 2)}
-    actions, states = agent.predict(batch, pos, state=np.stack([state, state]),
-                                    episode_start=np.array([False, True]))
-    going_on = agent.predict(obs, info, state=state)
-    fresh = agent.predict(moving, info)
-    np.testing.assert_allclose(actions[0], going_on[0], atol=1e-5)
-    np.testing.assert_allclose(actions[1], fresh[0], atol=1e-5)
-    np.testing.assert_array_equal(states, np.stack([going_on[1], fresh[1]]))
+    going_on, fresh = rows_predict_as_alone(agent, obs, moving, info, state)
     gear, travel = gear_travel(torch.tensor(obs[4]), torch.tensor(state[0]),
                                torch.tensor(state[1]), agent.config.env.task.vehicle.dt)
-    assert tuple(going_on[1]) == (gear.item(), travel.item())
-    assert tuple(fresh[1]) == (0.0, 2.0)  # a new episode: no gear, the full travel
+    assert tuple(going_on[1][:2]) == (gear.item(), travel.item())
+    assert tuple(fresh[1][:2]) == (0.0, 2.0)  # a new episode: no gear, the full travel
     with pytest.raises(ValueError, match="state must be"):
         agent.predict(obs, info, state=np.zeros(3))
     with pytest.raises(ValueError, match="episode_start must"):
-        agent.predict(batch, pos, state=states, episode_start=np.array([True]))
+        agent.predict(np.stack([obs, moving]), {"position": np.stack([info["position"]] * 2)},
+                      state=np.stack([state, state]), episode_start=np.array([True]))
 
 
 def test_load_agent_names_a_file_that_is_not_a_checkpoint(tmp_path):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 
+import numpy as np
 import pytest
 import torch
 from tensordict import TensorDict
@@ -18,6 +19,7 @@ from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import step_mdp
 
 import trainers.distill as distill_module
+from tests.test_agent import rows_predict_as_alone
 from torchpark import ParkingConfig, ParkingEnv
 from torchpark.aids.docking import docking_action, error_from_goal
 from torchpark.experts import PlannerConfig
@@ -40,7 +42,7 @@ from trainers.distill import (
     student_config,
     teacher_planner,
 )
-from trainers.evaluate import checkpoint_agent
+from trainers.evaluate import checkpoint_agent, run_level
 from trainers.heads import BinnedGearHead
 from trainers.utils import (
     build_models,
@@ -296,6 +298,44 @@ def test_a_student_with_the_gear_features_reads_them_everywhere(teacher_path, tm
     assert bool(((travel >= 0) & (travel <= 1)).all()) and bool((travel < 1).any())
     agent = load_agent(str(out / "checkpoint_final.pt"))
     agent.make_env(2, 0.9, seed=0).rollout(3, agent.policy)
+
+
+def test_a_student_with_a_scan_memory_reads_it_everywhere_and_predicts_with_it(
+        teacher_path, tmp_path, coarse_planner):
+    """The scan memory joins the student's input (after the gear features, before the
+    position) in its rollouts and its final-approach states; its Gymnasium ``predict``
+    carries the memory as a recurrent state and drives the evaluator's episode to the last
+    bit, and a batch's row flagged as a new episode's start forgets it."""
+    out = tmp_path / "memory"
+    main([teacher_path, "--out", str(out), "--iterations", "2", "--envs", "4", "--steps",
+          "5", "--epochs", "1", "--dagger-epochs", "1", "--yardstick", "2", "--approach",
+          "8", "--clearance-features", "--gear-features", "--position", "--scan-memory", "2"])
+    cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
+    assert cfg.agent.scan_memory == 2
+    assert checkpoint["trained_by"].startswith("distilled (gear head, clearance features, "
+                                               "gear features, a memory of 2 scans, position)")
+    data = torch.load(out / "dagger_data" / "iteration_001.pt")
+    assert data[0].shape[-1] == 23 + 7 + 16 + 2 + 16 + 2
+    path = str(out / "checkpoint_final.pt")
+    evaluated = run_level(checkpoint_agent(path), 0.6, episodes=1, seed=5)
+    agent = load_agent(path)
+    env = agent.gym_env(occupancy=0.6, seed=5)
+    obs, info = env.reset()
+    poses, states, state = [env.unwrapped.env.state.pose[0].clone()], [], None
+    for _ in range(int(evaluated.length[0])):
+        action, state = agent.predict(obs, info, state=state)
+        states.append((obs, info, state))
+        obs, _r, terminated, truncated, info = env.step(action)
+        poses.append(env.unwrapped.env.state.pose[0].clone())
+    assert terminated or truncated
+    torch.testing.assert_close(torch.stack(poses), evaluated.poses[:len(poses), 0], rtol=0,
+                               atol=0)
+    assert state.shape == (2 + 2 * (4 + 16),)
+    (_obs, _info, before), (after_obs, after_info, _) = states[3], states[4]
+    going_on, fresh = rows_predict_as_alone(agent, after_obs, after_obs, after_info, before)
+    assert not np.array_equal(going_on[1][2:], fresh[1][2:])  # the memory went on
+    with pytest.raises(ValueError, match=r"state must be the \(42,\)"):
+        agent.predict(after_obs, after_info, state=before[:2])
 
 
 def test_a_student_with_binned_steering_is_fitted_and_driven_by_its_bins(teacher_path,

@@ -21,10 +21,14 @@ from torchpark import (
     GoalFrameFeatures,
     ParkingConfig,
     ParkingEnv,
+    ScanMemory,
 )
 from torchpark.experts.planner import GearHold
 from torchpark.sim.vehicle import gear_travel
-from torchpark.transforms.features import box_edge_distance, goal_in_vehicle_frame
+from torchpark.transforms.features import (
+    box_edge_distance,
+    goal_in_vehicle_frame,
+)
 from torchpark.transforms.sync_free import SyncFreeEnv
 
 
@@ -174,3 +178,105 @@ def test_gear_features_without_history_and_bad_arguments():
     env = TransformedEnv(ParkingEnv(2, seed=0), GearTravelFeatures(0.1))
     with pytest.raises(RuntimeError, match="reset"):
         env.transform._step(TensorDict({}, [2]), env.base_env.reset())
+
+
+def scan_points(pose: np.ndarray, lidar: np.ndarray, cfg: ParkingConfig) -> np.ndarray:
+    """Reference: the world (x, y) where each ray of a scan from rear-axle poses (N, 3) ends
+    ((N, R) metres), float64: (N, R, 2)."""
+    x, y, psi = pose.T
+    cx = x + cfg.vehicle.centre_offset * np.cos(psi)
+    cy = y + cfg.vehicle.centre_offset * np.sin(psi)
+    angles = psi[:, None] + 2 * np.pi * np.arange(lidar.shape[1]) / lidar.shape[1]
+    return np.stack([cx[:, None] + lidar * np.cos(angles),
+                     cy[:, None] + lidar * np.sin(angles)], -1)
+
+
+def sector_bounds(points: np.ndarray, pose: np.ndarray, cfg: ParkingConfig, slack: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Reference: the smallest gap (m) from the box at rear-axle poses (N, 3) to the world
+    points (N, P, 2) in each ray's sector, float64, as (N, R) bounds for a float32 result:
+    over the points within ``slack`` rad of the sector (low) and over those ``slack`` rad
+    inside it (high), each clamped to the range."""
+    x, y, psi = pose.T
+    c, s = np.cos(psi)[:, None], np.sin(psi)[:, None]
+    px = points[..., 0] - (x + cfg.vehicle.centre_offset * np.cos(psi))[:, None]
+    py = points[..., 1] - (y + cfg.vehicle.centre_offset * np.sin(psi))[:, None]
+    qx, qy = c * px + s * py, -s * px + c * py
+    gap = np.hypot(np.maximum(np.abs(qx) - cfg.vehicle.length / 2, 0),
+                   np.maximum(np.abs(qy) - cfg.vehicle.width / 2, 0))
+    rays = cfg.lidar.n_rays
+    width = 2 * np.pi / rays
+    # each point's angle from each ray's axis, wrapped to [-pi, pi)
+    off = (np.arctan2(qy, qx)[..., None] - width * np.arange(rays) + np.pi) % (2 * np.pi) - np.pi
+    bounds = []
+    for edge in (width / 2 + slack, width / 2 - slack):
+        within = np.abs(off) <= edge
+        bounds.append(np.where(within, gap[..., None], np.inf).min(1))
+    return tuple(np.minimum(b, cfg.lidar.max_range) for b in bounds)
+
+
+@pytest.mark.parametrize("sync_free", [False, True])
+def test_scan_memory_holds_the_scans_before_seen_from_the_car_now(sync_free):
+    """Random driving in dense lots with episodes ending (torchrl's step_and_maybe_reset and
+    the trainer's SyncFreeEnv): after every step each feature is the smallest gap from the
+    box now to where a ray of this scan or of the last three of the same episode ended, in
+    that ray's sector (the env's own poses and LIDAR, a float64 reference; a point within
+    1e-4 rad of a sector's edge may fall either side); a new episode fills the memory with
+    its first scan."""
+    n, scans = 32, 3
+    env = ParkingEnv(n, seed=5, reset_in_step=sync_free)
+    env.occupancy = 0.9
+    cfg = env.config
+    tenv = (SyncFreeEnv if sync_free else TransformedEnv)(
+        env, ScanMemory(cfg, scans, "observation", "observation_policy"))
+    generator = torch.Generator().manual_seed(1)
+    td = tenv.reset()
+    first = scan_points(env.state.pose.double().numpy(),
+                        td["observation"][:, 7:].double().numpy() * cfg.lidar.max_range, cfg)
+    last, trail = first, [first] * scans  # the scan now; the memory, newest first
+    ends = 0
+    for step in range(40):
+        pose = env.state.pose.double().numpy()
+        low, high = sector_bounds(np.concatenate([last, *trail], 1), pose, cfg, 1e-4)
+        got = torch.sinh(td["observation_policy"][:, 23:].double()).numpy() * 0.1
+        assert got.shape == (n, 16)
+        assert (got >= low - 2e-4).all() and (got <= high + 2e-4).all(), f"step {step}"
+        assert torch.equal(td["observation_policy"][:, :23], td["observation"])
+        action = (torch.rand(n, 2, generator=generator) * 2 - 1) * torch.tensor([5.0, 0.785])
+        td["action"] = action
+        td, td = tenv.step_and_maybe_reset(td)
+        now = scan_points(env.state.pose.double().numpy(),
+                          td["observation"][:, 7:].double().numpy() * cfg.lidar.max_range, cfg)
+        fresh = env.state.steps.eq(0).numpy()[:, None, None]
+        ends += int(fresh.sum())
+        # the next features read the scans before them: the one just left joins the memory
+        trail = [np.where(fresh, now, t) for t in [last, *trail[:-1]]]
+        last = now
+    assert ends > 0  # some rows were reset along the way
+
+
+def test_scan_memory_without_history_and_bad_arguments():
+    """A batch of states outside an env remembers its own scan: each sector's gap is at most
+    the clearance along its ray (whose end lies in it), and in some sectors another ray's
+    end is nearer; bad arguments name themselves."""
+    cfg = ParkingConfig()
+    env = ParkingEnv(16, seed=2)
+    env.occupancy = 0.6
+    td = env.reset()
+    out = ScanMemory(cfg, 2)(td.select("observation"))
+    gap = torch.sinh(out["observation_policy"][:, 23:]) * 0.1
+    assert gap.shape == (16, 16)
+    clearance = td["observation"][:, 7:] * cfg.lidar.max_range - box_edge_distance(
+        16, cfg.vehicle.length, cfg.vehicle.width)
+    assert (gap <= clearance.clamp_min(0) + 1e-4).all()
+    assert (gap < clearance - 0.05).any()  # a sector where another ray's end is nearer
+    for scans in (0, 65, 1.5, True, "2"):
+        with pytest.raises(ValueError, match="scans"):
+            ScanMemory(cfg, scans)
+    with pytest.raises(ValueError, match="precision"):
+        ScanMemory(cfg, 1, precision=0.0)
+    with pytest.raises(ValueError, match="observation"):
+        ScanMemory(cfg, 1)(TensorDict({"observation": torch.zeros(2, 10)}, [2]))
+    tenv = TransformedEnv(ParkingEnv(2, seed=0), ScanMemory(cfg, 1))
+    with pytest.raises(RuntimeError, match="reset"):
+        tenv.transform._step(TensorDict({}, [2]), tenv.base_env.reset())

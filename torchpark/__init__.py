@@ -22,6 +22,7 @@ from torchpark.transforms.features import (
     ClearanceFeatures,
     GearTravelFeatures,
     GoalFrameFeatures,
+    ScanMemory,
 )
 
 register()  # gymnasium.make("torchpark/Parking-v0")
@@ -45,5 +46,6 @@ __all__ = [
     "ParkingVectorEnv",
     "PowerActionMap",
     "RewardConfig",
+    "ScanMemory",
     "VehicleConfig",
 ]

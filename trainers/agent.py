@@ -35,7 +35,7 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import ProbabilisticActor
 
-from torchpark import ENV_ID, AidsConfig, GearTravelFeatures, ParkingConfig
+from torchpark import ENV_ID, AidsConfig, GearTravelFeatures, ParkingConfig, ScanMemory
 from torchpark.aids.step import BRAKED
 from torchpark.sim.observation import SPEED
 from torchpark.sim.vehicle import gear_travel
@@ -96,11 +96,12 @@ class TrainedAgent:
         ``deterministic=False`` samples from the policy's distribution.
 
         ``state`` is None for an agent whose input is the observation of the moment. One with
-        the gear features (``AgentConfig.gear_features``) reads the episode so far, as a
-        recurrent policy: pass back the state the last call returned ((2,) or (B, 2): the
-        gear and its travel, m), None at an episode's first observation, and, as SB3 does,
-        ``episode_start`` (B,) bool for the rows whose observation is a new episode's first
-        (every row when ``state`` is None)."""
+        the gear features (``AgentConfig.gear_features``) or a scan memory
+        (``AgentConfig.scan_memory``) reads the episode so far, as a recurrent policy: pass
+        back the state the last call returned ((S,) or (B, S): the gear and its travel, m,
+        then the remembered scans, flattened), None at an episode's first observation, and,
+        as SB3 does, ``episode_start`` (B,) bool for the rows whose observation is a new
+        episode's first (every row when ``state`` is None)."""
         obs = torch.as_tensor(np.asarray(observation, np.float32))
         dim = self._inputs.base_env.obs_dim
         if obs.dim() not in (1, 2) or obs.shape[-1] != dim:
@@ -122,9 +123,9 @@ class TrainedAgent:
                                  f"({len(td)} x {width}), got shape {tuple(value.shape)}")
             td[key] = value.reshape(len(td), width).to(batch.device)
         transform = self._inputs.transform
-        gear = self._gear_features
-        if gear is not None:
-            going_on = self._gear_state(gear, batch, state, episode_start)
+        gear, memory = self._recurrent
+        if gear is not None or memory is not None:
+            going_on = self._set_state(batch, state, episode_start)
             td["_reset"] = ~going_on[:, None]  # the rows that go on keep the state set here
         mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
         with torch.no_grad(), set_exploration_type(mode):
@@ -132,27 +133,35 @@ class TrainedAgent:
             td = transform.inv(self.actor(transform._reset(td, td)))
         high = self._inputs.base_env.action_spec.space.high.reshape(-1, 2)[0]
         action = (td["action"] / high).clamp(-1.0, 1.0).cpu().numpy()
-        if gear is None:
+        if gear is None and memory is None:
             return (action[0] if single else action), None
-        new_state = torch.stack((gear.gear, gear.travel), -1).cpu().numpy()
+        parts = []
+        if gear is not None:
+            parts.append(torch.stack((gear.gear, gear.travel), -1))
+        if memory is not None:  # the scans the next observation's features read
+            now = memory.scan(batch)[:, None]
+            parts.append(torch.cat((now, memory.history[:, :-1]), 1).flatten(1))
+        new_state = torch.cat(parts, -1).cpu().numpy()
         return (action[0], new_state[0]) if single else (action, new_state)
 
-    def _gear_state(self, gear: GearTravelFeatures, batch: torch.Tensor,
-                    state: np.ndarray | None, episode_start: np.ndarray | None
-                    ) -> torch.Tensor:
-        """Sets ``gear``'s state to the rows' gear and travel after this observation (B, D):
-        a new episode's rows start, the others go on from ``state`` by the observed speed.
-        Returns the rows that go on, (B,) bool."""
+    def _set_state(self, batch: torch.Tensor, state: np.ndarray | None,
+                   episode_start: np.ndarray | None) -> torch.Tensor:
+        """Sets the recurrent input transforms' state for this observation (B, D): a new
+        episode's rows start, the others go on from ``state`` (the gear by the observed
+        speed, the scan memory as it was). Returns the rows that go on, (B,) bool."""
+        gear, memory = self._recurrent
         b = batch.shape[0]
+        width = (2 if gear is not None else 0) + (
+            memory.scans * (4 + memory.n_rays) if memory is not None else 0)
         going_on = torch.zeros(b, dtype=torch.bool, device=batch.device)
-        before = torch.zeros(b, 2, device=batch.device)
+        before = torch.zeros(b, width, device=batch.device)
         if state is not None:
             before = torch.as_tensor(np.asarray(state, np.float32), device=batch.device)
-            if before.numel() != 2 * b:
-                raise ValueError(f"state must be the (2,) or ({b}, 2) array the last predict "
-                                 f"returned (or None at an episode's first observation), got "
-                                 f"shape {tuple(before.shape)}")
-            before = before.reshape(b, 2)
+            if before.numel() != width * b:
+                raise ValueError(f"state must be the ({width},) or ({b}, {width}) array the "
+                                 f"last predict returned (or None at an episode's first "
+                                 f"observation), got shape {tuple(before.shape)}")
+            before = before.reshape(b, width)
             going_on = torch.ones(b, dtype=torch.bool, device=batch.device)
             if episode_start is not None:
                 start = torch.as_tensor(np.asarray(episode_start, bool), device=batch.device)
@@ -160,16 +169,22 @@ class TrainedAgent:
                     raise ValueError(f"episode_start must hold one flag per observation "
                                      f"({b}), got shape {tuple(start.shape)}")
                 going_on = ~start.reshape(b)
-        gear.gear, gear.travel = gear_travel(batch[:, SPEED], before[:, 0], before[:, 1],
-                                             gear.step_time)
-        gear.start_rows(~going_on)
+        if gear is not None:
+            gear.gear, gear.travel = gear_travel(batch[:, SPEED], before[:, 0], before[:, 1],
+                                                 gear.step_time)
+            gear.start_rows(~going_on)
+            before = before[:, 2:]
+        if memory is not None:  # the rows that start are refilled by the transform's reset
+            memory.history = before.reshape(b, memory.scans, 4 + memory.n_rays)
         return going_on
 
     @cached_property
-    def _gear_features(self) -> GearTravelFeatures | None:
-        """The input's gear features, if the agent reads them."""
-        found = [t for t in self._inputs.transform if isinstance(t, GearTravelFeatures)]
-        return found[0] if found else None
+    def _recurrent(self) -> tuple[GearTravelFeatures | None, ScanMemory | None]:
+        """The input's transforms that read the episode so far, where the agent has them:
+        the gear features, the scan memory."""
+        found = [next((t for t in self._inputs.transform if isinstance(t, kind)), None)
+                 for kind in (GearTravelFeatures, ScanMemory)]
+        return found[0], found[1]
 
     def _info_keys(self) -> tuple[str, ...]:
         """The env outputs besides the observation that the policy's input reads."""

@@ -70,6 +70,11 @@ class AgentConfig:
     # from the observed speed over the episode (torchpark.GearTravelFeatures): what a
     # teacher's gear hold decides by.
     gear_features: bool = False
+    # Append, per LIDAR ray, the nearest gap from the car's box to where a ray of this scan
+    # or of the scan_memory scans before it ended in that ray's sector (torchpark.ScanMemory),
+    # counted from the observations over the episode: the corners the 16 rays of one scan
+    # pass between. 0: none.
+    scan_memory: int = 0
     # Append the env's braked flag (the brake stopped the last step) to the policy's input:
     # a deterministic policy that pushes into a parked car sees that it was stopped.
     observe_brake: bool = False
@@ -340,6 +345,8 @@ def check_agent(cfg: TrainConfig) -> None:
     require(not agent.gear_head or agent.action_exponents is not None,
             "agent.gear_head", "False without agent.action_exponents (the gear picks a pair "
             "of [-1, 1] actions for the power map)", agent.gear_head)
+    require(0 <= agent.scan_memory <= 64, "agent.scan_memory", "an int in [0, 64] (past "
+            "scans remembered)", agent.scan_memory)
     bins = cfg.model.steer_bins
     require(bins == 0 or (bins >= 3 and bins % 2 == 1 and agent.gear_head), "model.steer_bins",
             "0, or an odd int >= 3 with agent.gear_head (the bins steer each gear)", bins)

@@ -135,7 +135,9 @@ class DistillConfig:
     planner keeps a new gear for that many metres (``PlannerConfig.gear_hold``, following
     the car the student drives); ``gear_features``: the student also reads the gear and its
     travel in it (torchpark.GearTravelFeatures), so a held gear's labels are a function of
-    its input; ``steer_bins``: 0, or the bins of the student's steering
+    its input; ``scan_memory``: 0, or the student also reads the nearest ray end in each
+    ray's sector over this scan and that many before it (torchpark.ScanMemory);
+    ``steer_bins``: 0, or the bins of the student's steering
     (``ModelConfig.steer_bins``, :class:`trainers.heads.BinnedGearHead`);
     ``target_lateral`` / ``target_heading``: the planner's
     target, where the law takes over, within that many metres of the slot axis and radians
@@ -169,6 +171,7 @@ class DistillConfig:
     retry: float = 0.0
     gear_hold: float = 0.0
     gear_features: bool = False
+    scan_memory: int = 0
     steer_bins: int = 0
     target_lateral: float | None = None
     target_heading: float | None = None
@@ -205,6 +208,8 @@ class DistillConfig:
             require(value is None or (math.isfinite(value) and 0.0 < value <= high),
                     f"DistillConfig.{name}", f"None or finite, in (0, {high:g}] ({unit})",
                     value)
+        require(0 <= self.scan_memory <= 64, "DistillConfig.scan_memory",
+                "an int in [0, 64]", self.scan_memory)
         require(self.steer_bins == 0 or (3 <= self.steer_bins <= 255
                                          and self.steer_bins % 2 == 1),
                 "DistillConfig.steer_bins", "0, or an odd int in [3, 255]", self.steer_bins)
@@ -290,7 +295,7 @@ def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
                 probability=cfg.near_goal) if cfg.near_goal > 0 else None),
             action_exponents=[cfg.speed_exponent, cfg.steer_exponent], gear_head=True,
             goal_features=True, clearance_features=cfg.clearance_features,
-            gear_features=cfg.gear_features),
+            gear_features=cfg.gear_features, scan_memory=cfg.scan_memory),
         model=dataclasses.replace(tcfg.model, hidden=hidden, steer_bins=cfg.steer_bins),
         logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
     return student
@@ -583,6 +588,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     parts = [name for name, on in (("gear head", True),
                                    ("clearance features", cfg.clearance_features),
                                    ("gear features", cfg.gear_features),
+                                   (f"a memory of {cfg.scan_memory} scans",
+                                    cfg.scan_memory > 0),
                                    ("binned steering", cfg.steer_bins > 0),
                                    ("position", cfg.position)) if on]
     made_of = f" ({', '.join(parts)})" if parts else ""

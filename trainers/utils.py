@@ -35,6 +35,7 @@ from torchpark import (
     OccupancyCurriculum,
     ParkingEnv,
     PowerActionMap,
+    ScanMemory,
 )
 from torchpark.aids.step import BRAKED
 from torchpark.transforms.sync_free import SyncFreeEnv, SyncFreeRewardScaling, SyncFreeVecNorm
@@ -213,6 +214,10 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
     if agent.gear_features:
         transforms.append(GearTravelFeatures(base.config.vehicle.dt * base.action_repeat,
                                              source[0], "observation_policy"))
+        source = ["observation_policy"]
+    if agent.scan_memory:
+        transforms.append(ScanMemory(base.config, agent.scan_memory, source[0],
+                                     "observation_policy"))
         source = ["observation_policy"]
     if agent.aids.observe_position:
         transforms.append(CatTensors([*source, "position"], "observation_policy",

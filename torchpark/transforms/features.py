@@ -222,3 +222,133 @@ class GearTravelFeatures(Transform):
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         return appended_spec(observation_spec, self.in_keys[0], self.out_keys[0], GEAR_FEATURES)
+
+
+def ray_end_gaps(scans: Tensor, now: Tensor, ray_cos: Tensor, ray_sin: Tensor,
+                 length: float, width: float) -> Tensor:
+    """The gap from the car's box now to where each ray of some LIDAR scans ended, and the
+    bearing it lies at.
+
+    scans: [..., K, 4 + R] scans, each the box centre (x, y) in a frame fixed for the episode
+    (m), the heading's cos and sin, and the R ray lengths (m); now: [..., 4] the box centre
+    and heading now; ray_cos, ray_sin: (R,) the rays' angles from the heading; ``length`` x
+    ``width``: the box (m). Returns (gap, bearing), each [..., K, R]: the distance (m) from
+    each ray's end to the box now (0 inside it), and its angle from the heading now
+    (atan2, rad).
+    """
+    cx, cy, c, s = (scans[..., k:k + 1] for k in range(4))  # [..., K, 1]
+    reach = scans[..., 4:]  # [..., K, R]
+    px = cx + reach * (c * ray_cos - s * ray_sin) - now[..., None, None, 0]
+    py = cy + reach * (s * ray_cos + c * ray_sin) - now[..., None, None, 1]
+    nc, ns = now[..., None, None, 2], now[..., None, None, 3]
+    qx, qy = nc * px + ns * py, nc * py - ns * px
+    gap = torch.hypot((qx.abs() - length / 2.0).clamp_min(0.0),
+                      (qy.abs() - width / 2.0).clamp_min(0.0))
+    return gap, torch.atan2(qy, qx)
+
+
+def sector_gaps(gap: Tensor, bearing: Tensor, n_rays: int) -> Tensor:
+    """[..., P] gaps (m) at bearings (rad) -> [..., n_rays] the smallest gap in each ray's
+    sector (the bearings nearer to ray k's angle 2 pi k / n_rays than to any other ray's;
+    inf where none lies)."""
+    sector = torch.round(bearing * (n_rays / (2.0 * math.pi))).long().remainder(n_rays)
+    rays = torch.arange(n_rays, device=gap.device)
+    inside = sector[..., None] == rays  # [..., P, n_rays]
+    return torch.where(inside, gap[..., None], math.inf).amin(-2)
+
+
+class ScanMemory(Transform):
+    """Writes ``out_key`` = cat(``in_key``, per ray of the car now, ``asinh(gap /
+    precision)`` of the smallest gap from its box to where a ray of this scan or of the last
+    ``scans`` scans ended in that ray's sector): a LIDAR as dense as the scans together.
+    The 16 rays leave 22.5 degrees between them, where a parked car's corner a metre off can
+    hide; as the car moves and turns, the scans before sample other angles. Pooled per
+    sector, the memory hands the policy the obstacles, not the car's own recent motion
+    (which a student imitating a teacher would copy). Computed from the paper's observation
+    (``in_key`` starts with it) alone: the box centre's motion from the goal offset (dx, dy,
+    the goal fixed in an episode) and the heading.
+
+    Stateful per env (the last ``scans`` scans, newest first, (N, scans, 4 + n_rays)):
+    ``_reset`` starts the rows it resets (all, or those of the ``"_reset"`` mask) with the
+    first scan in every place; each step's features read the scans before it, then push its
+    own. Called on a batch of states outside an env (``transform(td)``), it has no history:
+    each row's scans are its own.
+
+    Args:
+        config: the env's config (its vehicle's box, its LIDAR's rays and range).
+        scans: how many past scans to remember.
+        in_key: the policy input that starts with the paper's observation.
+        out_key: where the [..., in_dim + n_rays] input goes.
+        precision: the gap (m) below which the asinh turns linear.
+    """
+
+    def __init__(self, config: ParkingConfig, scans: int, in_key: str = "observation",
+                 out_key: str = "observation_policy", precision: float = 0.1) -> None:
+        require(isinstance(scans, int) and not isinstance(scans, bool) and 1 <= scans <= 64,
+                "scans", "an int in [1, 64]", scans)
+        if not precision > 0:
+            raise ValueError(f"precision must be > 0 (m), got {precision!r}")
+        super().__init__(in_keys=[in_key], out_keys=[out_key])
+        self.scans = scans
+        self.n_rays = config.lidar.n_rays
+        self.max_range = config.lidar.max_range
+        self.length, self.width = config.vehicle.length, config.vehicle.width
+        self.offset = config.vehicle.centre_offset
+        self.precision = precision
+        angles = ray_angles(self.n_rays)
+        self.register_buffer("ray_cos", torch.cos(angles).to(torch.float32))
+        self.register_buffer("ray_sin", torch.sin(angles).to(torch.float32))
+        self.history: Tensor | None = None
+
+    def scan(self, source: Tensor) -> Tensor:
+        """[..., D] input starting with the paper's observation -> [..., 4 + n_rays]: the
+        box centre from the goal (m), the heading's cos and sin, the rays' lengths (m)."""
+        if source.shape[-1] < NAV_DIM + self.n_rays:
+            raise ValueError(f"{self.in_keys[0]} must have >= {NAV_DIM + self.n_rays} "
+                             f"features, got shape {tuple(source.shape)}")
+        dx, dy, c, s = source[..., :4].unbind(-1)
+        centre = torch.stack([self.offset * c - dx, self.offset * s - dy, c, s], -1)
+        lidar = source[..., NAV_DIM:NAV_DIM + self.n_rays] * self.max_range
+        return torch.cat([centre, lidar], -1)
+
+    def _features(self, source: Tensor, now: Tensor, history: Tensor) -> Tensor:
+        scans = torch.cat([now[..., None, :], history], dim=-2)
+        gap, bearing = ray_end_gaps(scans, now[..., :4], self.ray_cos.to(source.device),
+                                    self.ray_sin.to(source.device), self.length, self.width)
+        pooled = sector_gaps(gap.flatten(-2), bearing.flatten(-2), self.n_rays)
+        # a sector no ray end lies in (none, or only beyond the range) reads the range
+        pooled = torch.asinh(pooled.clamp(max=self.max_range) / self.precision)
+        return torch.cat([source, pooled.to(source.dtype)], dim=-1)
+
+    def _repeated(self, now: Tensor) -> Tensor:
+        return now[..., None, :].expand(*now.shape[:-1], self.scans, now.shape[-1])
+
+    def _apply_transform(self, source: Tensor) -> Tensor:
+        """Without history (a batch of states): every remembered scan is the row's own."""
+        now = self.scan(source)
+        return self._features(source, now, self._repeated(now))
+
+    def _reset(self, tensordict, tensordict_reset):
+        source = tensordict_reset.get(self.in_keys[0])
+        now = self.scan(source)
+        fresh = torch.ones(now.shape[:-1], dtype=torch.bool, device=now.device)
+        if self.history is not None and self.history.shape[:-2] == now.shape[:-1] \
+                and tensordict is not None and "_reset" in tensordict.keys():
+            fresh = tensordict.get("_reset").reshape(fresh.shape).to(now.device)
+        else:
+            self.history = self._repeated(now).clone()
+        self.history = torch.where(fresh[..., None, None], self._repeated(now), self.history)
+        tensordict_reset.set(self.out_keys[0], self._features(source, now, self.history))
+        return tensordict_reset
+
+    def _step(self, tensordict, next_tensordict):
+        if self.history is None:
+            raise RuntimeError("ScanMemory: step before reset (reset the env first)")
+        source = next_tensordict.get(self.in_keys[0])
+        now = self.scan(source)
+        next_tensordict.set(self.out_keys[0], self._features(source, now, self.history))
+        self.history = torch.cat([now[..., None, :], self.history[..., :-1, :]], dim=-2)
+        return next_tensordict
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        return appended_spec(observation_spec, self.in_keys[0], self.out_keys[0], self.n_rays)
