@@ -509,6 +509,8 @@ def test_action_repeat_must_divide_the_batch():
     ("env.reset_in_step=2", "env.reset_in_step must be true, false or null"),
     ("model.init_log_std=100", "model.init_log_std must be a number in [-20, 2]"),
     ("seed=4294967296", "seed must be an int in [0, 2**32)"),
+    ("agent.scan_memory=65", "agent.scan_memory must be an int in [0, 64]"),
+    ("agent.scan_memory=-1", "agent.scan_memory must be an int in [0, 64]"),
 ])
 def test_a_bad_training_field_is_one_line_naming_it(override, name, capsys):
     with pytest.raises(SystemExit) as refused:
