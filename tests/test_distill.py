@@ -38,6 +38,7 @@ from trainers.distill import (
     fit,
     imitation_error,
     main,
+    steps_in_stall,
     steps_to_collision,
     student_config,
     teacher_planner,
@@ -197,6 +198,7 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("collision_weight", 0.0),
                                           ("collision_weight", float("inf")),
                                           ("collision_horizon", 0),
+                                          ("stall_from", 0), ("stall_from", 1.5),
                                           ("speed_exponent", 0.5),
                                           ("steer_exponent", float("inf")),
                                           ("dagger_epochs", 0), ("lr_decay", 1),
@@ -367,6 +369,32 @@ def test_steps_to_collision_count_back_from_the_colliding_step_within_its_episod
                        torch.tensor([[3, inf], [2, inf], [1, 3], [inf, 2], [inf, 1]]))
 
 
+def test_a_stall_is_a_window_of_one_episode_that_ends_near_where_it_began():
+    # Row 0 rocks 0.4 m forwards and back; row 1 drives 0.5 m a step; row 2 rocks but its
+    # episode ends at step 3 (its next one starts where it stood); row 3 stands still (no
+    # stall: the docking law's creep to the goal looks so); row 4 rocks and its episode
+    # ends at step 5 (rocking that ends in a park or a collision is no stall).
+    steps = 6
+    t = torch.arange(steps + 1, dtype=torch.float32)
+    x = torch.stack((0.4 * (t % 2), 0.5 * t, 0.4 * (t % 2), torch.zeros_like(t),
+                     0.4 * (t % 2)), -1)
+    positions = torch.stack((x, torch.zeros_like(x)), -1)  # (T + 1, N, 2)
+    goals = torch.tensor([10.0, 0.0]).expand(steps, 5, 2).clone()
+    done = torch.zeros(steps, 5, dtype=torch.bool)
+    done[3, 2] = done[5, 4] = True
+    stalled = steps_in_stall(positions, goals, done, window=3, distance=1.0, travel=1.0)
+    expected = torch.zeros(steps, 5, dtype=torch.bool)
+    expected[:4, 0] = True  # windows from states 0-3 cover 1.2 m and end within 0.4 m
+    # row 2: its first episode ends within the rollout, no window fits in its second
+    assert torch.equal(stalled, expected)
+    assert torch.equal(steps_in_stall(positions, goals, done, window=3, distance=1.0, travel=1.3),
+                       torch.zeros(steps, 5, dtype=torch.bool))  # rocking, but not that far
+    assert not steps_in_stall(positions, goals, done, window=7, travel=0.0).any()  # past the end
+    goals[2:, 0, 0] = 0.5  # near the goal from state 2 on: lining up, not stalling
+    expected[2:, 0] = False
+    assert torch.equal(steps_in_stall(positions, goals, done, window=3, travel=1.0), expected)
+
+
 def test_a_rollout_counts_the_steps_to_the_drivers_collisions(teacher_path):
     # A driver that floors it forwards, turning a little, at 90 %: into the parked cars.
     scfg = student_config(teacher_path, DistillConfig())
@@ -381,9 +409,11 @@ def test_a_rollout_counts_the_steps_to_the_drivers_collisions(teacher_path):
         return td.set("action", floor_it.expand(td.shape[0], 5))
 
     steps = 40
-    x, y, ahead = distill_module.rollout(env, driver, teacher, torch.tensor([3.0, 1.0]), steps,
-                                         False, 0.0, torch.Generator().manual_seed(0))
-    assert x.shape[0] == y.shape[0] == ahead.shape[0] == steps * 8
+    x, y, ahead, stalled = distill_module.rollout(env, driver, teacher,
+                                                  torch.tensor([3.0, 1.0]), steps, False, 0.0,
+                                                  torch.Generator().manual_seed(0))
+    assert x.shape[0] == y.shape[0] == ahead.shape[0] == stalled.shape[0] == steps * 8
+    assert not stalled.any()  # 40 steps: no 100-step window fits
     ahead = ahead.reshape(steps, 8)
     assert (ahead == 1).sum() >= 4  # collisions
     # Within a row the count runs down by one a step to the colliding step's 1.

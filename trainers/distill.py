@@ -12,7 +12,9 @@ drives the paper's env with nothing around it.
                                              [--target-lateral 0.25]
                                              [--target-heading 0.12] [--steer-bins 9]
                                              [--collision-weight 1]
-                                             [--collision-horizon 10] [--resume]
+                                             [--collision-horizon 10]
+                                             [--stall-weight 1] [--stall-from 1]
+                                             [--resume]
 
 TEACHER is a hybrid checkpoint (``results/fast/checkpoint_final.pt``): its docking law and
 brake join the approach planner in the expert (:class:`Teacher`), its network sizes are the
@@ -27,7 +29,12 @@ first iteration, ``dagger_epochs`` after each later one. Half the rows drive wit
 noise on the control (DART: Laskey et al., 2017), so the data holds the corrections back to
 the teacher's path. With ``--collision-weight W`` the states from which the driver collided
 within ``--collision-horizon`` steps weigh W in the fit: the student's own collisions,
-relabelled, count more than a state it passes.
+relabelled, count more than a state it passes. With ``--stall-weight W`` so do the states
+the student (not the teacher) then stalls from: more than ``STALL_AWAY`` m from the goal,
+in an episode that goes on to the rollout's end, whose next ``FREEZE_STEPS`` steps cover
+``STALL_TRAVEL`` m or more and end within ``FREEZE_DISTANCE`` of where they began (the
+evaluator's freezing, :mod:`torchpark.runner`, of a car that rocks between the two locks
+the teacher would hold).
 
 The last millimetre asks for speeds of mm/s, a ten-thousandth of the range, and a steering
 that lines the car up to 0.1 deg. The first iteration therefore also labels ``approach``
@@ -94,7 +101,7 @@ from torchpark.curriculum import PAPER_LEVELS
 from torchpark.experts import ExpertConfig, PlannerConfig
 from torchpark.experts.planner import GearHold, lot_planner, plan_control
 from torchpark.files import locked, save_torch, write_csv
-from torchpark.runner import run_episodes
+from torchpark.runner import FREEZE_DISTANCE, FREEZE_STEPS, run_episodes
 from torchpark.sim.geometry import wrap_angle
 from torchpark.transforms.actions import (
     GearActionMap,
@@ -112,6 +119,12 @@ from trainers.utils import NORMALISED, build_models, make_base_env, policy_input
 # The student's raw input (before normalisation): the paper's observation, the goal seen
 # from the car (torchpark.GoalFrameFeatures) and optionally the rays' clearance.
 STUDENT_INPUT = "observation_policy"
+# A stall (steps_in_stall) covers at least this much path, m, in the evaluator's freezing
+# window (100 steps of dt): a car rocking at the planner's 2 m/s covers about 20 m.
+STALL_TRAVEL = 5.0
+# ... from a state more than this far from its goal, m: nearer, the docking law's turns to
+# line the car up to the millimetre cover metres of path without going far.
+STALL_AWAY = 2.0
 
 
 @dataclass(frozen=True)
@@ -124,6 +137,9 @@ class DistillConfig:
     goal and weighted ``approach_weight`` times a rollout state in the fit;
     ``collision_weight``: the weight of the rollout states from which the driver collides
     within ``collision_horizon`` steps (its own collisions relabelled; 1: as any other);
+    ``stall_weight``: of those from which the student stalls (:func:`steps_in_stall`; the
+    weights multiply where both hold) in the iterations from ``stall_from`` on (counted from
+    0 as in ``dagger.csv``; the teacher's own stalls in iteration 0 are never weighted);
     ``speed_exponent`` / ``steer_exponent``: the student's action map (u in [-1, 1] drives
     high * sign(u) |u| ** exponent); ``clearance_features``: the student also reads the gap
     along each LIDAR ray (torchpark.ClearanceFeatures); ``position``: and its position in
@@ -162,6 +178,8 @@ class DistillConfig:
     approach_weight: float = 1.0
     collision_weight: float = 1.0
     collision_horizon: int = 10
+    stall_weight: float = 1.0
+    stall_from: int = 1
     lr_decay: bool = False
     speed_exponent: float = 3.0
     steer_exponent: float = 1.0
@@ -184,13 +202,15 @@ class DistillConfig:
         check_types(self)
         for name, high in (("iterations", 1000), ("envs", 65536), ("steps", 100_000),
                            ("epochs", 1000), ("dagger_epochs", 1000), ("batch_size", 1 << 20),
-                           ("yardstick", 65536), ("collision_horizon", 1000)):
+                           ("yardstick", 65536), ("collision_horizon", 1000),
+                           ("stall_from", 1000)):
             value = getattr(self, name)
             require(1 <= value <= high, f"DistillConfig.{name}", f"an int in [1, {high}]",
                     value)
         require(0 <= self.approach <= 1 << 20, "DistillConfig.approach",
                 "an int in [0, 1048576]", self.approach)
-        for name in ("lr", "approach_reach", "approach_weight", "collision_weight"):
+        for name in ("lr", "approach_reach", "approach_weight", "collision_weight",
+                     "stall_weight"):
             positive(f"DistillConfig.{name}", getattr(self, name))
         for name in ("speed_exponent", "steer_exponent"):
             value = getattr(self, name)
@@ -351,23 +371,26 @@ def approach_states(env: TransformedEnv, features: Transform, teacher: Teacher,
 
 def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tensor, steps: int,
             teacher_drives: bool, noise: float, generator: torch.Generator
-            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``steps`` steps of dt of ``env`` (every row reset first), driven by the teacher's
     labels or the student's deterministic actions, noisy on every other row (Gaussian,
     ``noise`` times the env's bounds, added to the env's action). Returns the student's raw
     inputs (steps x N, D), the teacher's labels there in the student's units (u, the
     (speed, steer) its power map with ``exponents`` turns into them, which the gear head
-    picks by :func:`~torchpark.transforms.actions.gear_select`) and, per state, the steps
+    picks by :func:`~torchpark.transforms.actions.gear_select`), per state, the steps
     of dt to the collision that ends its episode (steps x N,; inf where the episode does
-    not end in one within the rollout: :func:`steps_to_collision`)."""
+    not end in one within the rollout: :func:`steps_to_collision`) and whether the driver
+    stalls from it (steps x N, bool: :func:`steps_in_stall`)."""
     n = env.base_env.num_envs
     high = env.base_env.action_spec.space.high[0]
     noisy = (torch.arange(n, device=env.device) % 2 == 1)[:, None]
-    inputs, labels, collided, done = [], [], [], []
+    inputs, labels, collided, done, positions, goals = [], [], [], [], [], []
     teacher.forget(torch.ones(n, dtype=torch.bool, device=env.device))
     td = env.reset()
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(steps):
+            positions.append(env.base_env.state.pose[:, :2])
+            goals.append(env.base_env.state.goal[:, :2])
             target = power_map_inverse(teacher.label(), high, exponents)
             inputs.append(td[STUDENT_INPUT])
             labels.append(target)
@@ -384,8 +407,42 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tenso
             collided.append(td["next", "collision"][:, 0])
             done.append(td["next", "done"][:, 0])
             td = td_next
-    ahead = steps_to_collision(torch.stack(collided), torch.stack(done))
-    return torch.cat(inputs), torch.cat(labels), ahead.reshape(-1)
+    positions.append(env.base_env.state.pose[:, :2])
+    done = torch.stack(done)
+    ahead = steps_to_collision(torch.stack(collided), done)
+    stalls = steps_in_stall(torch.stack(positions), torch.stack(goals), done)
+    return torch.cat(inputs), torch.cat(labels), ahead.reshape(-1), stalls.reshape(-1)
+
+
+def steps_in_stall(positions: torch.Tensor, goals: torch.Tensor, done: torch.Tensor,
+                   window: int = FREEZE_STEPS, distance: float = FREEZE_DISTANCE,
+                   travel: float = STALL_TRAVEL, away: float = STALL_AWAY) -> torch.Tensor:
+    """Per state of a rollout, whether the driver stalls from it, rocking short of its goal:
+    the rear axle is more than ``away`` m from the goal, the episode goes on to the
+    rollout's end (no park, no collision), and along the next ``window`` steps of dt the
+    rear axle covers at least ``travel`` m and ends less than ``distance`` m from where it
+    was (the evaluator's freezing, over any ``window`` steps, not only an episode's last,
+    of a car that keeps moving; the docking law's turns to line up at the goal are not
+    counted).
+
+    ``positions`` (T + 1, N, 2) m: the rear axle before each step and after the last (a
+    row's reset start after a step that ended its episode); ``goals`` (T, N, 2) m: the goal
+    of each state's episode; ``done`` (T, N) bool: whether the step from state t ended the
+    episode. Returns (T, N) bool, False where the episode ends within the rollout or the
+    window runs past its end."""
+    steps = done.shape[0]
+    stalled = torch.zeros_like(done)
+    if window > steps:
+        return stalled
+    ends = torch.cat((torch.zeros_like(done[:1], dtype=torch.long), done.long().cumsum(0)))
+    t = torch.arange(steps - window + 1, device=done.device)
+    same = ends[-1] == ends[t]  # no episode end among steps t .. T - 1
+    moved = (positions[t + window] - positions[t]).norm(dim=-1)
+    path = torch.cat((torch.zeros_like(positions[:1, :, 0]),
+                      (positions[1:] - positions[:-1]).norm(dim=-1).cumsum(0)))
+    far = (positions[t] - goals[t]).norm(dim=-1) > away
+    stalled[t] = same & far & (moved < distance) & (path[t + window] - path[t] >= travel)
+    return stalled
 
 
 def steps_to_collision(collided: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
@@ -602,15 +659,21 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     if cfg.collision_weight != 1.0:
         dagger += (f"; the states up to {cfg.collision_horizon} steps before its own "
                    f"collisions weighted {cfg.collision_weight:g}")
+    if cfg.stall_weight != 1.0:
+        dagger += f"; the states it stalls from weighted {cfg.stall_weight:g}"
+        if cfg.stall_from != 1:
+            dagger += f" from iteration {cfg.stall_from}"
     started = time.perf_counter() - elapsed
     for iteration in range(first, cfg.iterations):
         batches = []
         for level in PAPER_LEVELS:
             base.occupancy = level
-            x, y, ahead = rollout(env, actor, teacher, exponents, cfg.steps, iteration == 0,
-                                  cfg.noise, generator)
+            x, y, ahead, stalled = rollout(env, actor, teacher, exponents, cfg.steps,
+                                           iteration == 0, cfg.noise, generator)
+            stalls = stalled & (iteration >= cfg.stall_from)
             batches.append((x, y, torch.where(ahead <= cfg.collision_horizon,
-                                              cfg.collision_weight, 1.0)))
+                                              cfg.collision_weight, 1.0)
+                            * torch.where(stalls, cfg.stall_weight, 1.0)))
             frames += x.shape[0]
         if iteration == 0:
             norm.freeze()  # the teacher's states set the student's input scale
