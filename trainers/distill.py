@@ -435,13 +435,13 @@ def steps_in_stall(positions: torch.Tensor, goals: torch.Tensor, done: torch.Ten
     if window > steps:
         return stalled
     ends = torch.cat((torch.zeros_like(done[:1], dtype=torch.long), done.long().cumsum(0)))
-    t = torch.arange(steps - window + 1, device=done.device)
-    same = ends[-1] == ends[t]  # no episode end among steps t .. T - 1
-    moved = (positions[t + window] - positions[t]).norm(dim=-1)
+    n = steps - window + 1  # the states whose window ends within the rollout
+    same = ends[-1] == ends[:n]  # no episode end among steps t .. T - 1
+    moved = (positions[window:] - positions[:n]).norm(dim=-1)
     path = torch.cat((torch.zeros_like(positions[:1, :, 0]),
                       (positions[1:] - positions[:-1]).norm(dim=-1).cumsum(0)))
-    far = (positions[t] - goals[t]).norm(dim=-1) > away
-    stalled[t] = same & far & (moved < distance) & (path[t + window] - path[t] >= travel)
+    far = (positions[:n] - goals[:n]).norm(dim=-1) > away
+    stalled[:n] = same & far & (moved < distance) & (path[window:] - path[:n] >= travel)
     return stalled
 
 
