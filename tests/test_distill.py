@@ -24,6 +24,7 @@ from torchpark import ParkingConfig, ParkingEnv
 from torchpark.aids.docking import docking_action, error_from_goal
 from torchpark.experts import PlannerConfig
 from torchpark.experts.planner import plan_control
+from torchpark.sim.step import move
 from torchpark.transforms.actions import PowerActionMap, gear_inverse, power_map_inverse
 from torchpark.transforms.features import GoalFrameFeatures
 from trainers.agent import load_agent
@@ -508,6 +509,32 @@ def test_with_retry_the_planner_teacher_backs_out_where_the_test_cannot_pass(tea
     # the near misses: the law's pass back, at full speed (not the planner's way out of the
     # slot, forwards or backwards wherever its tables say)
     assert (speed[0::2] == -law.max_speed).all()
+
+
+def test_with_a_reverse_margin_the_law_turns_forwards_short_of_contact(teacher_path):
+    # cars on their slot's axis 5-6.9 m back, reversing at 1 m/s, at 90 %: the far ones
+    # have the lane's other side (a parked car or a wall) close behind
+    paper = ParkingEnv(32, seed=3, config=ParkingConfig(occupancy=0.9))
+    paper.reset()
+    sim = paper.state
+    back = torch.linspace(5.0, 6.9, 32)
+    goal = sim.goal
+    pose = torch.stack((goal[:, 0] - back * torch.cos(goal[:, 2]),
+                        goal[:, 1] - back * torch.sin(goal[:, 2]), goal[:, 2]), -1)
+    paper.set_state(sim._replace(pose=pose, speed=torch.full((32,), -1.0)))
+    speed = {margin: Teacher(teacher_path, TransformedEnv(paper), planner=COARSE_PLAN,
+                             reverse_margin=margin).label()[:, 0] for margin in (0.0, 0.5)}
+    still = torch.zeros(32)
+    _, touching = move(pose, still, still, sim.present, paper.world, paper.config)
+    _, near = move(pose, torch.full((32,), -0.5 / paper.config.vehicle.dt), still,
+                   sim.present, paper.world, paper.config)
+    near, free = near & ~touching, ~near & ~touching
+    assert near.sum() >= 4 and free.sum() >= 4
+    # without the margin the law reverses on (or the brake stops it at contact); with it,
+    # the pass ends where 0.5 m more would touch, and nothing changes elsewhere
+    assert (speed[0.0][near] <= 0).all() and (speed[0.0][free] < 0).all()
+    assert (speed[0.5][near] > 0).all()
+    assert torch.equal(speed[0.5][free], speed[0.0][free])
 
 
 def test_a_resumed_run_gives_the_checkpoints_of_a_run_never_stopped(teacher_path, tmp_path,

@@ -103,6 +103,7 @@ from torchpark.experts.planner import GearHold, lot_planner, plan_control
 from torchpark.files import locked, save_torch, write_csv
 from torchpark.runner import FREEZE_DISTANCE, FREEZE_STEPS, run_episodes
 from torchpark.sim.geometry import wrap_angle
+from torchpark.sim.step import move
 from torchpark.transforms.actions import (
     GearActionMap,
     PowerActionMap,
@@ -147,7 +148,10 @@ class DistillConfig:
     back to the goal from up to ``settle`` m past it
     (:attr:`~torchpark.aids.config.DockingConfig.settle`); ``retry``: only where the test
     can still pass, else it reverses ``retry`` m and drives in again
-    (:attr:`~torchpark.aids.config.DockingConfig.retry`); ``gear_hold``: the teacher's
+    (:attr:`~torchpark.aids.config.DockingConfig.retry`); ``reverse_margin``: 0, or the
+    teacher's law ends a reversing pass (drives forwards again, as when the brake stops it)
+    where reversing that many metres further would touch a parked car or a wall
+    (:class:`Teacher`); ``gear_hold``: the teacher's
     planner keeps a new gear for that many metres (``PlannerConfig.gear_hold``, following
     the car the student drives); ``gear_features``: the student also reads the gear and its
     travel in it (torchpark.GearTravelFeatures), so a held gear's labels are a function of
@@ -187,6 +191,7 @@ class DistillConfig:
     position: bool = False
     settle: float = 0.0
     retry: float = 0.0
+    reverse_margin: float = 0.0
     gear_hold: float = 0.0
     gear_features: bool = False
     scan_memory: int = 0
@@ -218,7 +223,7 @@ class DistillConfig:
         require(0.0 <= self.near_goal <= 1.0, "DistillConfig.near_goal", "in [0, 1]",
                 self.near_goal)
         require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
-        for name in ("settle", "retry", "gear_hold"):
+        for name in ("settle", "retry", "reverse_margin", "gear_hold"):
             value = getattr(self, name)
             require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
                     value)
@@ -244,7 +249,11 @@ class Teacher:
     law there (a hybrid checkpoint's, creeping back to the goal from up to ``settle`` m past
     it and, with ``retry``, backing out ``retry`` m where the test cannot pass), the
     checkpoint's brake under both. ``planner``: its grid and costs (the default's tables
-    take about two minutes to build; tests pass a coarse grid).
+    take about two minutes to build; tests pass a coarse grid). ``reverse_margin`` m: 0, or
+    the law's reversing pass, which otherwise runs until the brake stops it at contact,
+    turns forwards where the car's box moved that far straight back would touch a parked
+    car or a wall: the label changes gear with room to spare, which a student a few steps
+    late still has.
 
     ``label()`` returns the (N, 2) control (v m/s, delta rad) the expert would drive with at
     the env's state, and advances the brake's flag as if it had (``intervened``: where the
@@ -256,7 +265,8 @@ class Teacher:
     episodes ended."""
 
     def __init__(self, path: str, env: TransformedEnv, settle: float = 0.0,
-                 retry: float = 0.0, planner: PlannerConfig | None = None) -> None:
+                 retry: float = 0.0, planner: PlannerConfig | None = None,
+                 reverse_margin: float = 0.0) -> None:
         cfg, _ = load_trained(path)
         _, aids = env_configs(cfg, training=False)
         if aids is None or aids.docking is None:
@@ -268,6 +278,7 @@ class Teacher:
             brake=aids.brake)
         self.aids = self.expert.aids()
         self.base = env.base_env
+        self.reverse_margin = reverse_margin
         config = self.base.config
         self.planner = lot_planner(config.lot, config.vehicle, self.expert.planner,
                                    str(self.base.device))
@@ -283,8 +294,16 @@ class Teacher:
         sim, law = self.base.state, self.aids.docking
         error = error_from_goal(sim.pose, sim.goal)
         funnel = in_funnel(error, law) | in_settle(error, law)
-        self.state = self.state._replace(docking_engaged=funnel,
-                                         docking_reverses=funnel & (sim.speed < 0))
+        reverses = funnel & (sim.speed < 0)
+        braked = self.state.braked
+        if self.reverse_margin > 0:  # the pass ends short of contact, as if braked there
+            config = self.base.config
+            back = torch.full_like(sim.speed, -self.reverse_margin / config.vehicle.dt)
+            _, near = move(sim.pose, back, torch.zeros_like(back), sim.present,
+                           self.base.world, config)
+            braked = braked | (reverses & near)
+        self.state = self.state._replace(braked=braked, docking_engaged=funnel,
+                                         docking_reverses=reverses)
         # the gear the car (the student) moves in, held
         action = torch.stack(plan_control(self.planner, sim.pose, sim.speed, sim.goal_slot,
                                           self.hold.keep_in(sim, self.base))[:2], -1)
@@ -620,7 +639,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     # outside the env to the final-approach states.
     features = Compose(*[t.clone() for t in inputs[:-1]
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
-    teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, teacher_planner(cfg, planner))
+    teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, teacher_planner(cfg, planner),
+                      cfg.reverse_margin)
     actor, _ = build_models(scfg)
     high = base.action_spec.space.high[0]
     exponents = torch.tensor([cfg.speed_exponent, cfg.steer_exponent], device=base.device)
@@ -655,6 +675,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
         source += f" (its law creeping to the goal within {cfg.settle:g} m"
         source += f", retrying {cfg.retry:g} m back where the test cannot pass)" if cfg.retry \
             else ")"
+    if cfg.reverse_margin:
+        source += f" (its law's reversing passes ending {cfg.reverse_margin:g} m short of contact)"
     dagger = "DAgger after the first"
     if cfg.collision_weight != 1.0:
         dagger += (f"; the states up to {cfg.collision_horizon} steps before its own "
