@@ -205,6 +205,8 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("dagger_epochs", 0), ("lr_decay", 1),
                                           ("settle", -0.01), ("settle", float("nan")),
                                           ("retry", -1.0), ("retry", float("inf")),
+                                          ("reverse_margin", -0.5),
+                                          ("reverse_margin", float("nan")),
                                           ("gear_hold", -0.5), ("gear_hold", float("nan")),
                                           ("target_lateral", 0.0),
                                           ("target_lateral", float("inf")),
