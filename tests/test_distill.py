@@ -207,6 +207,7 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("retry", -1.0), ("retry", float("inf")),
                                           ("reverse_margin", -0.5),
                                           ("reverse_margin", float("nan")),
+                                          ("reverse_margin", 1.5),
                                           ("gear_hold", -0.5), ("gear_hold", float("nan")),
                                           ("target_lateral", 0.0),
                                           ("target_lateral", float("inf")),

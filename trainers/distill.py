@@ -150,8 +150,8 @@ class DistillConfig:
     can still pass, else it reverses ``retry`` m and drives in again
     (:attr:`~torchpark.aids.config.DockingConfig.retry`); ``reverse_margin``: 0, or the
     teacher's law ends a reversing pass (drives forwards again, as when the brake stops it)
-    where reversing that many metres further would touch a parked car or a wall
-    (:class:`Teacher`); ``gear_hold``: the teacher's
+    where reversing that many metres further (at most 1) would touch a parked car or a
+    wall (:class:`Teacher`); ``gear_hold``: the teacher's
     planner keeps a new gear for that many metres (``PlannerConfig.gear_hold``, following
     the car the student drives); ``gear_features``: the student also reads the gear and its
     travel in it (torchpark.GearTravelFeatures), so a held gear's labels are a function of
@@ -223,10 +223,14 @@ class DistillConfig:
         require(0.0 <= self.near_goal <= 1.0, "DistillConfig.near_goal", "in [0, 1]",
                 self.near_goal)
         require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
-        for name in ("settle", "retry", "reverse_margin", "gear_hold"):
+        for name in ("settle", "retry", "gear_hold"):
             value = getattr(self, name)
             require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
                     value)
+        # the look-ahead tests the pose reverse_margin m back only: no further than the
+        # thinnest obstacle (the lot's 1 m walls), or it could step over one
+        require(0.0 <= self.reverse_margin <= 1.0, "DistillConfig.reverse_margin",
+                "in [0, 1] m", self.reverse_margin)
         for name, (high, unit) in (("target_lateral", (math.inf, "m")),
                                    ("target_heading", (math.pi, "rad"))):
             value = getattr(self, name)
