@@ -20,7 +20,7 @@ from torchrl.envs.utils import step_mdp
 
 import trainers.distill as distill_module
 from tests.test_agent import rows_predict_as_alone
-from torchpark import ParkingConfig, ParkingEnv
+from torchpark import LotConfig, ParkingConfig, ParkingEnv
 from torchpark.aids.docking import docking_action, error_from_goal
 from torchpark.experts import PlannerConfig
 from torchpark.experts.planner import plan_control
@@ -207,7 +207,6 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("retry", -1.0), ("retry", float("inf")),
                                           ("reverse_margin", -0.5),
                                           ("reverse_margin", float("nan")),
-                                          ("reverse_margin", 1.5),
                                           ("gear_hold", -0.5), ("gear_hold", float("nan")),
                                           ("target_lateral", 0.0),
                                           ("target_lateral", float("inf")),
@@ -538,6 +537,17 @@ def test_with_a_reverse_margin_the_law_turns_forwards_short_of_contact(teacher_p
     assert (speed[0.0][near] <= 0).all() and (speed[0.0][free] < 0).all()
     assert (speed[0.5][near] > 0).all()
     assert torch.equal(speed[0.5][free], speed[0.0][free])
+
+
+@pytest.mark.parametrize(("wall", "margin"), [(1.0, 1.5), (0.75, 0.8), (1.0, float("nan"))])
+def test_a_reverse_margin_past_the_lots_thinnest_obstacle_is_refused(teacher_path, wall,
+                                                                    margin):
+    # the look-ahead tests the one pose that far back: beyond the thinnest obstacle it
+    # could step over a wall
+    paper = ParkingEnv(2, config=ParkingConfig(lot=LotConfig(wall_thickness=wall)))
+    with pytest.raises(ValueError, match=rf"^reverse_margin must be in \[0, {wall:g}\] m"):
+        Teacher(teacher_path, TransformedEnv(paper), planner=COARSE_PLAN,
+                reverse_margin=margin)
 
 
 def test_a_resumed_run_gives_the_checkpoints_of_a_run_never_stopped(teacher_path, tmp_path,

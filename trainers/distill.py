@@ -150,8 +150,8 @@ class DistillConfig:
     can still pass, else it reverses ``retry`` m and drives in again
     (:attr:`~torchpark.aids.config.DockingConfig.retry`); ``reverse_margin``: 0, or the
     teacher's law ends a reversing pass (drives forwards again, as when the brake stops it)
-    where reversing that many metres further (at most 1) would touch a parked car or a
-    wall (:class:`Teacher`); ``gear_hold``: the teacher's
+    where reversing that many metres further (at most the thinnest obstacle: the lot's 1 m
+    walls) would touch a parked car or a wall (:class:`Teacher`); ``gear_hold``: the teacher's
     planner keeps a new gear for that many metres (``PlannerConfig.gear_hold``, following
     the car the student drives); ``gear_features``: the student also reads the gear and its
     travel in it (torchpark.GearTravelFeatures), so a held gear's labels are a function of
@@ -223,14 +223,11 @@ class DistillConfig:
         require(0.0 <= self.near_goal <= 1.0, "DistillConfig.near_goal", "in [0, 1]",
                 self.near_goal)
         require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
-        for name in ("settle", "retry", "gear_hold"):
+        # reverse_margin's upper bound is the env's lot's: Teacher checks it
+        for name in ("settle", "retry", "reverse_margin", "gear_hold"):
             value = getattr(self, name)
             require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
                     value)
-        # the look-ahead tests the pose reverse_margin m back only: no further than the
-        # thinnest obstacle (the lot's 1 m walls), or it could step over one
-        require(0.0 <= self.reverse_margin <= 1.0, "DistillConfig.reverse_margin",
-                "in [0, 1] m", self.reverse_margin)
         for name, (high, unit) in (("target_lateral", (math.inf, "m")),
                                    ("target_heading", (math.pi, "rad"))):
             value = getattr(self, name)
@@ -257,7 +254,8 @@ class Teacher:
     the law's reversing pass, which otherwise runs until the brake stops it at contact,
     turns forwards where the car's box moved that far straight back would touch a parked
     car or a wall: the label changes gear with room to spare, which a student a few steps
-    late still has.
+    late still has (at most the lot's thinnest obstacle, which the look-ahead must not step
+    over; refused beyond).
 
     ``label()`` returns the (N, 2) control (v m/s, delta rad) the expert would drive with at
     the env's state, and advances the brake's flag as if it had (``intervened``: where the
@@ -282,8 +280,14 @@ class Teacher:
             brake=aids.brake)
         self.aids = self.expert.aids()
         self.base = env.base_env
-        self.reverse_margin = reverse_margin
         config = self.base.config
+        # the look-ahead tests the one pose reverse_margin m back: no further than the
+        # thinnest obstacle, or it could step over one
+        thinnest = min(config.lot.wall_thickness, config.lot.car_width)
+        require(0.0 <= reverse_margin <= thinnest, "reverse_margin",
+                f"in [0, {thinnest:g}] m (the thinnest obstacle, min(LotConfig."
+                f"wall_thickness, car_width))", reverse_margin)
+        self.reverse_margin = reverse_margin
         self.planner = lot_planner(config.lot, config.vehicle, self.expert.planner,
                                    str(self.base.device))
         self.angles = steer_angles(config, self.aids.brake or BrakeConfig(), self.base.device)
