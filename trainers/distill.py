@@ -14,9 +14,7 @@ drives the paper's env with nothing around it.
                                              [--collision-weight 1]
                                              [--collision-horizon 10]
                                              [--stall-weight 1] [--stall-from 1]
-                                             [--reverse-margin 0.5]
-                                             [--planner-headings 96]
-                                             [--start-from CHECKPOINT] [--resume]
+                                             [--resume]
 
 TEACHER is a hybrid checkpoint (``results/fast/checkpoint_final.pt``): its docking law and
 brake join the approach planner in the expert (:class:`Teacher`), its network sizes are the
@@ -36,9 +34,7 @@ the student (not the teacher) then stalls from: more than ``STALL_AWAY`` m from 
 in an episode that goes on to the rollout's end, whose next ``FREEZE_STEPS`` steps cover
 ``STALL_TRAVEL`` m or more and end within ``FREEZE_DISTANCE`` of where they began (the
 evaluator's freezing, :mod:`torchpark.runner`, of a car that rocks between the two locks
-the teacher would hold). With ``--start-from CHECKPOINT`` the run starts from a student this
-command distilled before (same student settings): its network and normaliser, the student
-driving from the first iteration, so a new teacher relabels the states it reaches.
+the teacher would hold).
 
 The last millimetre asks for speeds of mm/s, a ten-thousandth of the range, and a steering
 that lines the car up to 0.1 deg. The first iteration therefore also labels ``approach``
@@ -116,7 +112,7 @@ from torchpark.transforms.actions import (
     power_map,
     power_map_inverse,
 )
-from trainers.checkpoint import load_trained, load_weights
+from trainers.checkpoint import load_trained
 from trainers.config import AgentConfig, EnvConfig, LoggerConfig, TrainConfig, env_configs
 from trainers.heads import BinnedGearHead, imitation_error
 from trainers.utils import NORMALISED, build_models, make_base_env, policy_input
@@ -144,8 +140,7 @@ class DistillConfig:
     within ``collision_horizon`` steps (its own collisions relabelled; 1: as any other);
     ``stall_weight``: of those from which the student stalls (:func:`steps_in_stall`; the
     weights multiply where both hold) in the iterations from ``stall_from`` on (counted from
-    0 as in ``dagger.csv``) that the student drives (the teacher's own stalls, in the first
-    iteration of a run from scratch, are never weighted);
+    0 as in ``dagger.csv``; the teacher's own stalls in iteration 0 are never weighted);
     ``speed_exponent`` / ``steer_exponent``: the student's action map (u in [-1, 1] drives
     high * sign(u) |u| ** exponent); ``clearance_features``: the student also reads the gap
     along each LIDAR ray (torchpark.ClearanceFeatures); ``position``: and its position in
@@ -156,13 +151,11 @@ class DistillConfig:
     (:attr:`~torchpark.aids.config.DockingConfig.retry`); ``reverse_margin``: 0, or the
     teacher's law ends a reversing pass (drives forwards again, as when the brake stops it)
     where reversing that many metres further (at most the thinnest obstacle: the lot's 1 m
-    walls) would touch a parked car or a wall (:class:`Teacher`); ``planner_headings``: None,
-    or the teacher's planner's heading grid (``PlannerConfig.headings``; None: the
-    planner's default); ``gear_hold``: the teacher's planner keeps a new gear for that
-    many metres (``PlannerConfig.gear_hold``, following the car the student drives);
-    ``gear_features``: the student also reads the gear and its travel in it
-    (torchpark.GearTravelFeatures), so a held gear's labels are a function of its input;
-    ``scan_memory``: 0, or the student also reads the nearest ray end in each
+    walls) would touch a parked car or a wall (:class:`Teacher`); ``gear_hold``: the teacher's
+    planner keeps a new gear for that many metres (``PlannerConfig.gear_hold``, following
+    the car the student drives); ``gear_features``: the student also reads the gear and its
+    travel in it (torchpark.GearTravelFeatures), so a held gear's labels are a function of
+    its input; ``scan_memory``: 0, or the student also reads the nearest ray end in each
     ray's sector over this scan and that many before it (torchpark.ScanMemory);
     ``steer_bins``: 0, or the bins of the student's steering
     (``ModelConfig.steer_bins``, :class:`trainers.heads.BinnedGearHead`);
@@ -173,9 +166,7 @@ class DistillConfig:
     ``lr_decay``: each fit's learning
     rate falls from ``lr`` to 0 along a cosine; ``epochs`` / ``dagger_epochs``: passes over
     the data after the first / each later iteration; ``width`` / ``depth``: the student's
-    hidden layers (None: the teacher's sizes); ``start_from``: None, or a student this
-    command distilled before (its checkpoint), whose network and normaliser the run starts
-    from: the student drives from the first iteration (DAgger on the states it reaches)."""
+    hidden layers (None: the teacher's sizes)."""
 
     iterations: int = 2
     envs: int = 128
@@ -201,7 +192,6 @@ class DistillConfig:
     settle: float = 0.0
     retry: float = 0.0
     reverse_margin: float = 0.0
-    planner_headings: int | None = None
     gear_hold: float = 0.0
     gear_features: bool = False
     scan_memory: int = 0
@@ -210,7 +200,6 @@ class DistillConfig:
     target_heading: float | None = None
     width: int | None = None
     depth: int | None = None
-    start_from: str | None = None
     yardstick: int = 200
     seed: int = 0
 
@@ -218,14 +207,13 @@ class DistillConfig:
         check_types(self)
         for name, high in (("iterations", 1000), ("envs", 65536), ("steps", 100_000),
                            ("epochs", 1000), ("dagger_epochs", 1000), ("batch_size", 1 << 20),
-                           ("yardstick", 65536), ("collision_horizon", 1000)):
+                           ("yardstick", 65536), ("collision_horizon", 1000),
+                           ("stall_from", 1000)):
             value = getattr(self, name)
             require(1 <= value <= high, f"DistillConfig.{name}", f"an int in [1, {high}]",
                     value)
-        for name, high in (("approach", 1 << 20), ("stall_from", 1000)):
-            value = getattr(self, name)
-            require(0 <= value <= high, f"DistillConfig.{name}", f"an int in [0, {high}]",
-                    value)
+        require(0 <= self.approach <= 1 << 20, "DistillConfig.approach",
+                "an int in [0, 1048576]", self.approach)
         for name in ("lr", "approach_reach", "approach_weight", "collision_weight",
                      "stall_weight"):
             positive(f"DistillConfig.{name}", getattr(self, name))
@@ -251,11 +239,6 @@ class DistillConfig:
         require(self.steer_bins == 0 or (3 <= self.steer_bins <= 255
                                          and self.steer_bins % 2 == 1),
                 "DistillConfig.steer_bins", "0, or an odd int in [3, 255]", self.steer_bins)
-        if self.planner_headings is not None:  # its range is the planner's
-            try:
-                teacher_planner(self)
-            except ValueError as err:
-                raise ValueError(f"DistillConfig.planner_headings: {err}") from None
         for name, high in (("width", 4096), ("depth", 8)):
             value = getattr(self, name)
             require(value is None or 1 <= value <= high, f"DistillConfig.{name}",
@@ -612,23 +595,6 @@ def run_state(out: Path, teacher_path: str, cfg: DistillConfig) -> dict:
     return saved
 
 
-def start_from(path: str, scfg: TrainConfig, actor, norm) -> None:
-    """Load the student of the distilled checkpoint ``path`` into ``actor`` and its input
-    normaliser into ``norm`` (frozen); ValueError where its agent or network is not the one
-    ``scfg`` builds."""
-    theirs, checkpoint = load_trained(path)
-    for part in ("agent", "model"):
-        ours, saved = (dataclasses.asdict(getattr(c, part)) for c in (scfg, theirs))
-        differs = sorted(k for k in ours if ours[k] != saved.get(k))
-        if differs:
-            raise ValueError(f"--start-from: the student of {path} has {part}.{differs[0]}="
-                             f"{saved.get(differs[0])!r}, this command builds "
-                             f"{ours[differs[0]]!r}")
-    load_weights(actor, checkpoint["actor"], path, "actor")
-    load_weights(norm, checkpoint["obs_norm"], path, "obs_norm")
-    norm.freeze()
-
-
 def teacher_digest(path: str) -> str:
     """The SHA-256 of the teacher's checkpoint file (a resumed run must have the same)."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
@@ -653,10 +619,9 @@ def data_path(out: Path, iteration: int) -> Path:
 def teacher_planner(cfg: DistillConfig, planner: PlannerConfig | None = None
                     ) -> PlannerConfig:
     """The teacher's planner: ``planner`` (default :class:`PlannerConfig`) with the run's gear
-    hold and, where set, its heading grid and its target's lateral and heading bounds."""
+    hold and, where set, its target's lateral and heading bounds."""
     target = {name: value for name, value in (("lateral", cfg.target_lateral),
-                                              ("heading", cfg.target_heading),
-                                              ("headings", cfg.planner_headings))
+                                              ("heading", cfg.target_heading))
               if value is not None}
     return dataclasses.replace(planner or PlannerConfig(), gear_hold=cfg.gear_hold, **target)
 
@@ -685,8 +650,6 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, teacher_planner(cfg, planner),
                       cfg.reverse_margin)
     actor, _ = build_models(scfg)
-    if cfg.start_from is not None:
-        start_from(cfg.start_from, scfg, actor, norm)
     high = base.action_spec.space.high[0]
     exponents = torch.tensor([cfg.speed_exponent, cfg.steer_exponent], device=base.device)
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
@@ -722,27 +685,22 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
             else ")"
     if cfg.reverse_margin:
         source += f" (its law's reversing passes ending {cfg.reverse_margin:g} m short of contact)"
-    if cfg.planner_headings is not None:
-        source += f" (its planner's grid of {cfg.planner_headings} headings)"
     dagger = "DAgger after the first"
-    if cfg.start_from is not None:
-        dagger = f"DAgger from the student of {cfg.start_from}"
     if cfg.collision_weight != 1.0:
         dagger += (f"; the states up to {cfg.collision_horizon} steps before its own "
                    f"collisions weighted {cfg.collision_weight:g}")
     if cfg.stall_weight != 1.0:
         dagger += f"; the states it stalls from weighted {cfg.stall_weight:g}"
-        if cfg.stall_from > 1:
+        if cfg.stall_from != 1:
             dagger += f" from iteration {cfg.stall_from}"
     started = time.perf_counter() - elapsed
     for iteration in range(first, cfg.iterations):
         batches = []
         for level in PAPER_LEVELS:
             base.occupancy = level
-            teacher_drives = iteration == 0 and cfg.start_from is None
             x, y, ahead, stalled = rollout(env, actor, teacher, exponents, cfg.steps,
-                                           teacher_drives, cfg.noise, generator)
-            stalls = stalled & (iteration >= cfg.stall_from) & (not teacher_drives)
+                                           iteration == 0, cfg.noise, generator)
+            stalls = stalled & (iteration >= cfg.stall_from)
             batches.append((x, y, torch.where(ahead <= cfg.collision_horizon,
                                               cfg.collision_weight, 1.0)
                             * torch.where(stalls, cfg.stall_weight, 1.0)))
