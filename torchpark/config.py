@@ -157,6 +157,12 @@ class LotConfig:
         check_seed(self.pool_seed, "LotConfig.pool_seed")
 
     @property
+    def thinnest_obstacle(self) -> float:
+        """The thinnest obstacle's thickness, m: min(wall_thickness, car_width) (a parked car
+        is narrower than it is long)."""
+        return min(self.wall_thickness, self.car_width)
+
+    @property
     def num_slots(self) -> int:
         return self.upper_slots + self.left_slots + self.middle_slots + self.right_slots
 
@@ -229,8 +235,7 @@ class ParkingConfig:
                  f"an int in [1, {_MAX_STEPS_LIMIT}]", self.max_steps)
         # A car that moves further in one step than the thinnest obstacle is thick could
         # pass through it between two collision tests.
-        stride, thinnest = self.vehicle.max_speed * self.vehicle.dt, min(
-            self.lot.wall_thickness, self.lot.car_width)
+        stride, thinnest = self.vehicle.max_speed * self.vehicle.dt, self.lot.thinnest_obstacle
         require(stride < thinnest, "VehicleConfig.max_speed * dt",
                  f"< the thinnest obstacle, min(LotConfig.wall_thickness, car_width) = "
                  f"{thinnest} m (else the car can pass through it in one step)", stride)

@@ -283,10 +283,10 @@ class Teacher:
         config = self.base.config
         # the look-ahead tests the one pose reverse_margin m back: no further than the
         # thinnest obstacle, or it could step over one
-        thinnest = min(config.lot.wall_thickness, config.lot.car_width)
+        thinnest = config.lot.thinnest_obstacle
         require(0.0 <= reverse_margin <= thinnest, "reverse_margin",
-                f"in [0, {thinnest:g}] m (the thinnest obstacle, min(LotConfig."
-                f"wall_thickness, car_width))", reverse_margin)
+                f"in [0, {thinnest:g}] m (LotConfig.thinnest_obstacle, min(wall_thickness, "
+                f"car_width))", reverse_margin)
         self.reverse_margin = reverse_margin
         self.planner = lot_planner(config.lot, config.vehicle, self.expert.planner,
                                    str(self.base.device))
