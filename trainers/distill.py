@@ -173,7 +173,9 @@ class DistillConfig:
     its default); ``funnel_lateral`` / ``funnel_heading``: the law's funnel, wider than the
     target (``PlannerConfig.law_lateral`` / ``law_heading``; None: the target's);
     ``handover``: 0, or the steps of dt the teacher simulates its law ahead before it takes
-    over beyond the target (:class:`Teacher`);
+    over beyond the target (:class:`Teacher`); ``car_margin``: the teacher's planner keeps
+    its car box, grown by that many metres, off the parked cars and walls it is clear of
+    (``PlannerConfig.car_margin``);
     ``lr_decay``: each fit's learning
     rate falls from ``lr`` to 0 along a cosine; ``epochs`` / ``dagger_epochs``: passes over
     the data after the first / each later iteration; ``width`` / ``depth``: the student's
@@ -213,6 +215,7 @@ class DistillConfig:
     funnel_lateral: float | None = None
     funnel_heading: float | None = None
     handover: int = 0
+    car_margin: float = 0.0
     width: int | None = None
     depth: int | None = None
     yardstick: int = 200
@@ -239,7 +242,7 @@ class DistillConfig:
                 self.near_goal)
         require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
         # reverse_margin's upper bound is the env's lot's: Teacher checks it
-        for name in ("settle", "retry", "reverse_margin", "gear_hold"):
+        for name in ("settle", "retry", "reverse_margin", "gear_hold", "car_margin"):
             value = getattr(self, name)
             require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
                     value)
@@ -381,7 +384,8 @@ class Teacher:
                                          docking_reverses=reverses)
         # the gear the car (the student) moves in, held
         action = torch.stack(plan_control(self.planner, sim.pose, sim.speed, sim.goal_slot,
-                                          self.hold.keep_in(sim, self.base))[:2], -1)
+                                          self.hold.keep_in(sim, self.base),
+                                          (self.base.world, sim.present))[:2], -1)
         control = aided_control(AidedState(sim, self.state), action,
                                 self.base.world, self.angles, self.base.config, self.aids)
         self.state, self.intervened = control.aids, control.intervened
@@ -686,13 +690,14 @@ def data_path(out: Path, iteration: int) -> Path:
 def teacher_planner(cfg: DistillConfig, planner: PlannerConfig | None = None
                     ) -> PlannerConfig:
     """The teacher's planner: ``planner`` (default :class:`PlannerConfig`) with the run's gear
-    hold and, where set, its target's lateral and heading bounds, its headings and the law's
-    funnel."""
+    hold and car margin and, where set, its target's lateral and heading bounds, its headings
+    and the law's funnel."""
     given = {name: value for name, value in (
         ("lateral", cfg.target_lateral), ("heading", cfg.target_heading),
         ("headings", cfg.planner_headings), ("law_lateral", cfg.funnel_lateral),
         ("law_heading", cfg.funnel_heading)) if value is not None}
-    return dataclasses.replace(planner or PlannerConfig(), gear_hold=cfg.gear_hold, **given)
+    return dataclasses.replace(planner or PlannerConfig(), gear_hold=cfg.gear_hold,
+                               car_margin=cfg.car_margin, **given)
 
 
 def distill(teacher_path: str, out: Path, cfg: DistillConfig,
@@ -754,6 +759,8 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
             else ")"
     if cfg.reverse_margin:
         source += f" (its law's reversing passes ending {cfg.reverse_margin:g} m short of contact)"
+    if cfg.car_margin:
+        source += f" (its planner keeping {cfg.car_margin:g} m off the parked cars)"
     if cfg.handover:
         source += (f" (its law taking over beyond the target only where {cfg.handover} steps of "
                    f"it ahead touch nothing)")
