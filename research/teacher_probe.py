@@ -34,26 +34,25 @@ TEACHER = "results/fast/checkpoint_final.pt"
 
 
 def cached(cache: Path):
-    """``lot_planner`` keeping its tables in ``cache``, keyed by what they depend on."""
-    def lot_planner(lot, vehicle, cfg: PlannerConfig, device: str) -> plan.Planner:
+    """``cost_to_go`` keeping its tables in ``cache``, keyed by what they depend on (the
+    planner is otherwise built as ever, :func:`~torchpark.experts.planner.build_planner`)."""
+    build = plan.cost_to_go
+
+    def cost_to_go(layout, vehicle, cfg: PlannerConfig) -> torch.Tensor:
         table_cfg = (cfg.cell, cfg.headings, cfg.step, cfg.steers, cfg.reverse_cost,
                      cfg.switch_cost, cfg.clearance, cfg.margin, cfg.band_cost, cfg.slot_cost,
                      cfg.reach_min, cfg.reach, cfg.lateral, cfg.heading)
-        key = hashlib.sha256(repr((lot, vehicle, table_cfg)).encode()).hexdigest()[:16]
+        key = hashlib.sha256(repr((layout.slots.tolist(), layout.walls.tolist(), vehicle,
+                                   table_cfg)).encode()).hexdigest()[:16]
         path = cache / f"tables_{key}.pt"
-        layout = plan.build_layout(lot, vehicle, device)
         if path.exists():
-            value = torch.load(path, map_location=device, weights_only=True)
-        else:
-            value = plan.cost_to_go(layout, vehicle, cfg)
-            cache.mkdir(parents=True, exist_ok=True)
-            torch.save(value, path.with_suffix(".tmp"))
-            path.with_suffix(".tmp").replace(path)
-        return plan.Planner(value, plan.grid_of(layout, cfg), plan.primitives(cfg, vehicle, device),
-                            plan.primitives(cfg, vehicle, device, cfg.control_step),
-                            plan.oriented_boxes(layout.slots), plan.oriented_boxes(layout.walls),
-                            vehicle, cfg)
-    return lot_planner
+            return torch.load(path, map_location=layout.slots.device, weights_only=True)
+        value = build(layout, vehicle, cfg)
+        cache.mkdir(parents=True, exist_ok=True)
+        torch.save(value, path.with_suffix(".tmp"))
+        path.with_suffix(".tmp").replace(path)  # whole or not at all
+        return value
+    return cost_to_go
 
 
 def main() -> None:
@@ -70,7 +69,7 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=None)
     args = parser.parse_args()
     if args.cache is not None:
-        distill.lot_planner = cached(args.cache)
+        plan.cost_to_go = cached(args.cache)
     law = {} if args.funnel is None else dict(law_lateral=args.funnel[0],
                                               law_heading=args.funnel[1])
     planner = PlannerConfig(headings=args.headings, gear_hold=0.75, lateral=0.25, heading=0.12,
