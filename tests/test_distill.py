@@ -20,7 +20,7 @@ from torchrl.envs.utils import step_mdp
 
 import trainers.distill as distill_module
 from tests.test_agent import rows_predict_as_alone
-from torchpark import LotConfig, ParkingConfig, ParkingEnv
+from torchpark import AidsConfig, LotConfig, ParkingConfig, ParkingEnv
 from torchpark.aids.docking import docking_action, error_from_goal
 from torchpark.experts import PlannerConfig
 from torchpark.experts.planner import plan_control
@@ -211,6 +211,12 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("target_lateral", 0.0),
                                           ("target_lateral", float("inf")),
                                           ("target_heading", -0.1), ("target_heading", 4.0),
+                                          ("funnel_lateral", 0.0),
+                                          ("funnel_heading", 4.0),
+                                          ("planner_headings", 7),
+                                          ("planner_headings", 2000),
+                                          ("handover", -1), ("handover", 1001),
+                                          ("handover", 2.5),
                                           ("steer_bins", 4), ("steer_bins", 1),
                                           ("steer_bins", 257),
                                           ("width", 0), ("width", True), ("depth", 9),
@@ -550,6 +556,61 @@ def test_a_reverse_margin_past_the_lots_thinnest_obstacle_is_refused(teacher_pat
                 reverse_margin=margin)
 
 
+WIDE_PLAN = dataclasses.replace(COARSE_PLAN, law_lateral=2.0, law_heading=1.0)
+
+
+def test_with_a_handover_look_ahead_the_law_takes_over_only_where_it_would_touch_nothing(
+        teacher_path):
+    # cars 3-7 m behind their goal at 90 %, moving forwards, off the planner's target (0.5 m,
+    # 0.25 rad) but in the law's wider funnel (2 m, 1 rad): the law turning in from there
+    # touches a parked car within 3 s in some lots, not in others
+    n, horizon = 64, 30
+    paper = ParkingEnv(n, seed=5, config=ParkingConfig(occupancy=0.9))
+    paper.reset()
+    sim = paper.state
+    generator = torch.Generator().manual_seed(0)
+    back, side, turn = torch.rand(3, n, generator=generator)
+    back, side = 3.0 + 4.0 * back, torch.where(torch.arange(n) % 2 == 0, 1.0, -1.0)
+    lateral, heading = side * (0.6 + 1.2 * turn), -side * 0.9 * turn
+    gx, gy, alpha = sim.goal.unbind(-1)
+    c, s = torch.cos(alpha), torch.sin(alpha)
+    pose = torch.stack((gx - back * c - lateral * s, gy - back * s + lateral * c,
+                        alpha + heading), -1)
+    _, touching = move(pose, torch.zeros(n), torch.zeros(n), sim.present, paper.world,
+                       paper.config)
+    paper.set_state(sim._replace(pose=pose, speed=torch.ones(n)))
+
+    def label(plan, handover=0):
+        return Teacher(teacher_path, TransformedEnv(paper), planner=plan,
+                       handover=handover).label()
+
+    wide = Teacher(teacher_path, TransformedEnv(paper), planner=WIDE_PLAN)
+    planner_label, law_label = label(COARSE_PLAN), wide.label()
+    looked = label(WIDE_PLAN, horizon)
+    # the oracle: the env itself, the law (the wide funnel's, no brake) driving every lot
+    lots = ParkingEnv(n, seed=5, config=ParkingConfig(occupancy=0.9),
+                      aids=AidsConfig(docking=wide.aids.docking))
+    lots.reset()
+    lots.set_state(paper.state)
+    collided = torch.zeros(n, dtype=torch.bool)
+    for _ in range(horizon):
+        td = lots.step(TensorDict({"action": torch.zeros(n, 2)}, [n]))
+        collided |= td["next", "collision"][:, 0]
+    clear = ~collided & ~touching
+    assert clear.sum() >= 8 and (collided & ~touching).sum() >= 8
+    torch.testing.assert_close(looked[clear], law_label[clear])
+    torch.testing.assert_close(looked[collided], planner_label[collided])
+    # and the two labels differ there: the test can tell them apart
+    assert (law_label[collided] != planner_label[collided]).any(-1).sum() >= 4
+
+
+@pytest.mark.parametrize("handover", [-1, 1001, 2.5])
+def test_a_handover_out_of_range_is_refused(teacher_path, handover):
+    paper = ParkingEnv(2)
+    with pytest.raises(ValueError, match=r"^handover must be an int in \[0, 1000\]"):
+        Teacher(teacher_path, TransformedEnv(paper), planner=WIDE_PLAN, handover=handover)
+
+
 def test_a_resumed_run_gives_the_checkpoints_of_a_run_never_stopped(teacher_path, tmp_path,
                                                                     capsys, coarse_planner):
     flags = ["--envs", "8", "--steps", "12", "--epochs", "2", "--dagger-epochs", "1",
@@ -619,6 +680,9 @@ def test_the_teachers_planner_takes_the_runs_hold_and_target():
         COARSE_PLAN, gear_hold=0.75, lateral=0.25, heading=0.12)
     assert teacher_planner(DistillConfig(target_heading=0.1), COARSE_PLAN).lateral \
         == COARSE_PLAN.lateral
+    wide = DistillConfig(planner_headings=96, funnel_lateral=0.6, funnel_heading=0.55)
+    assert teacher_planner(wide) == PlannerConfig(headings=96, law_lateral=0.6,
+                                                  law_heading=0.55)
 
 
 def test_the_teachers_gear_hold_follows_the_car(teacher_path):

@@ -12,7 +12,8 @@ import pytest
 import torch
 
 from tests.conftest import polygon
-from torchpark import DockingConfig, ParkingEnv, VehicleConfig
+from torchpark import DockingConfig, ParkingConfig, ParkingEnv, VehicleConfig
+from torchpark.aids.brake import fence
 from torchpark.experts import ExpertConfig, PlannerConfig, PlannerExpert
 from torchpark.experts.planner import (
     GearHold,
@@ -26,6 +27,7 @@ from torchpark.experts.planner import (
     target_cells,
 )
 from torchpark.sim.vehicle import bicycle_step, vehicle_boxes
+from torchpark.sim.world import touches_obstacle
 
 # A coarse grid: its tables build in seconds on the default lot.
 COARSE = PlannerConfig(cell=1.0, headings=32, step=1.5)
@@ -170,6 +172,41 @@ def test_a_kept_gear_is_the_cars_wherever_a_look_ahead_in_it_is_open(planner, la
         # kept: the car's gear, unless every look-ahead in it is blocked (then the free one)
         assert ((kept * moving > 0) | torch.eq(kept, free)).all()
         assert (kept[other] * moving > 0).any()
+
+
+def test_with_a_car_margin_no_arc_taken_brings_the_grown_box_onto_a_parked_car(planner):
+    # cars near the lanes' edges at 90 %: the control reads only slots, so some of its arcs
+    # end with the box grown by 0.3 m on a parked car it was clear of; with the margin none do
+    n = 2048
+    env = ParkingEnv(n, seed=2, config=ParkingConfig(occupancy=0.9))
+    env.reset()
+    sim = env.state
+    pose = grid_poses(planner.grid, "cpu")[torch.randperm(planner.grid.count,
+                                                          generator=torch.Generator()
+                                                          .manual_seed(0))[:n]]
+    margin = 0.3
+    cars = (env.world, sim.present)
+
+    def grown_touches(p):
+        return touches_obstacle(fence(p, env.config.vehicle, margin), env.world, sim.present)
+
+    def newly_near(control):
+        v, delta, _ = control
+        prim = planner.control  # the arc each row drives: its gear's at its angle
+        taken = ((torch.sign(prim.travel) == torch.sign(v)[:, None])
+                 & (prim.steer == delta[:, None])).float().argmax(-1)
+        end = arcs(pose, prim.travel, prim.curvature)[torch.arange(n), taken]
+        return (v != 0) & grown_touches(end) & ~grown_touches(pose)
+
+    plain = plan_control(planner, pose, torch.zeros(n), sim.goal_slot)
+    kept = planner._replace(cfg=dataclasses.replace(COARSE, car_margin=margin))
+    assert newly_near(plain).sum() >= 2
+    assert not newly_near(plan_control(kept, pose, torch.zeros(n), sim.goal_slot,
+                                       cars=cars)).any()
+    # no cars given, or no margin: the plain control
+    for control in (plan_control(kept, pose, torch.zeros(n), sim.goal_slot),
+                    plan_control(planner, pose, torch.zeros(n), sim.goal_slot, cars=cars)):
+        assert all(torch.equal(a, b) for a, b in zip(control, plain, strict=True))
 
 
 def test_gear_hold_counts_the_travel_since_the_last_change_of_gear():

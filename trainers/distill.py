@@ -93,17 +93,23 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchpark.aids.brake import steer_angles
 from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts
-from torchpark.aids.docking import error_from_goal, in_funnel, in_settle
+from torchpark.aids.docking import (
+    docking_action,
+    docking_phase,
+    error_from_goal,
+    in_funnel,
+    in_settle,
+)
 from torchpark.aids.starts import near_starts_free
 from torchpark.aids.step import AidedState, AidState, aided_control
-from torchpark.config import ParkingConfig, check_types, positive, require
+from torchpark.config import ParkingConfig, check_types, is_integer, positive, require
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.experts import ExpertConfig, PlannerConfig
 from torchpark.experts.planner import GearHold, lot_planner, plan_control
 from torchpark.files import locked, save_torch, write_csv
 from torchpark.runner import FREEZE_DISTANCE, FREEZE_STEPS, run_episodes
 from torchpark.sim.geometry import wrap_angle
-from torchpark.sim.step import move
+from torchpark.sim.step import ParkingState, move
 from torchpark.transforms.actions import (
     GearActionMap,
     PowerActionMap,
@@ -163,6 +169,13 @@ class DistillConfig:
     target, where the law takes over, within that many metres of the slot axis and radians
     of the goal's heading (``PlannerConfig.lateral`` / ``heading``; None: the planner's
     default; a tight target leaves the law little to turn, so the brake seldom acts);
+    ``planner_headings``: the planner's grid of headings (``PlannerConfig.headings``; None:
+    its default); ``funnel_lateral`` / ``funnel_heading``: the law's funnel, wider than the
+    target (``PlannerConfig.law_lateral`` / ``law_heading``; None: the target's);
+    ``handover``: 0, or the steps of dt the teacher simulates its law ahead before it takes
+    over beyond the target (:class:`Teacher`); ``car_margin``: the teacher's planner keeps
+    its car box, grown by that many metres, off the parked cars and walls it is clear of
+    (``PlannerConfig.car_margin``);
     ``lr_decay``: each fit's learning
     rate falls from ``lr`` to 0 along a cosine; ``epochs`` / ``dagger_epochs``: passes over
     the data after the first / each later iteration; ``width`` / ``depth``: the student's
@@ -198,6 +211,11 @@ class DistillConfig:
     steer_bins: int = 0
     target_lateral: float | None = None
     target_heading: float | None = None
+    planner_headings: int | None = None
+    funnel_lateral: float | None = None
+    funnel_heading: float | None = None
+    handover: int = 0
+    car_margin: float = 0.0
     width: int | None = None
     depth: int | None = None
     yardstick: int = 200
@@ -224,12 +242,15 @@ class DistillConfig:
                 self.near_goal)
         require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
         # reverse_margin's upper bound is the env's lot's: Teacher checks it
-        for name in ("settle", "retry", "reverse_margin", "gear_hold"):
+        for name in ("settle", "retry", "reverse_margin", "gear_hold", "car_margin"):
             value = getattr(self, name)
             require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
                     value)
+        # the funnel's lower bounds (the target's) are PlannerConfig's to check
         for name, (high, unit) in (("target_lateral", (math.inf, "m")),
-                                   ("target_heading", (math.pi, "rad"))):
+                                   ("target_heading", (math.pi, "rad")),
+                                   ("funnel_lateral", (math.inf, "m")),
+                                   ("funnel_heading", (math.pi, "rad"))):
             value = getattr(self, name)
             require(value is None or (math.isfinite(value) and 0.0 < value <= high),
                     f"DistillConfig.{name}", f"None or finite, in (0, {high:g}] ({unit})",
@@ -239,6 +260,11 @@ class DistillConfig:
         require(self.steer_bins == 0 or (3 <= self.steer_bins <= 255
                                          and self.steer_bins % 2 == 1),
                 "DistillConfig.steer_bins", "0, or an odd int in [3, 255]", self.steer_bins)
+        require(0 <= self.handover <= 1000, "DistillConfig.handover", "an int in [0, 1000]",
+                self.handover)
+        require(self.planner_headings is None or 8 <= self.planner_headings <= 1024,
+                "DistillConfig.planner_headings", "None or an int in [8, 1024]",
+                self.planner_headings)
         for name, high in (("width", 4096), ("depth", 8)):
             value = getattr(self, name)
             require(value is None or 1 <= value <= high, f"DistillConfig.{name}",
@@ -255,7 +281,12 @@ class Teacher:
     turns forwards where the car's box moved that far straight back would touch a parked
     car or a wall: the label changes gear with room to spare, which a student a few steps
     late still has (at most the lot's thinnest obstacle, which the look-ahead must not step
-    over; refused beyond).
+    over; refused beyond). ``handover`` steps of dt: 0, the law takes over anywhere in its
+    funnel (``planner.law_*``); H > 0, beyond the planner's own target (where it always does)
+    only where the law itself, simulated H steps on from there (its reversing passes ending
+    ``reverse_margin`` short as in the labels), touches nothing: a funnel wider than the
+    target ends the planner's stalls short of it without handing the law a turn-in it could
+    only finish with the brake.
 
     ``label()`` returns the (N, 2) control (v m/s, delta rad) the expert would drive with at
     the env's state, and advances the brake's flag as if it had (``intervened``: where the
@@ -268,7 +299,7 @@ class Teacher:
 
     def __init__(self, path: str, env: TransformedEnv, settle: float = 0.0,
                  retry: float = 0.0, planner: PlannerConfig | None = None,
-                 reverse_margin: float = 0.0) -> None:
+                 reverse_margin: float = 0.0, handover: int = 0) -> None:
         cfg, _ = load_trained(path)
         _, aids = env_configs(cfg, training=False)
         if aids is None or aids.docking is None:
@@ -288,6 +319,17 @@ class Teacher:
                 f"in [0, {thinnest:g}] m (LotConfig.thinnest_obstacle, min(wall_thickness, "
                 f"car_width))", reverse_margin)
         self.reverse_margin = reverse_margin
+        require(is_integer(handover) and 0 <= handover <= 1000, "handover",
+                "an int in [0, 1000] (steps of dt)", handover)
+        self.handover = handover
+        # with a look-ahead the law's own funnel is the planner's target, and the wider one
+        # is entered only where the look-ahead is clear
+        self.funnel = self.aids.docking
+        if handover:
+            target = self.expert.planner
+            self.aids = dataclasses.replace(self.aids, docking=dataclasses.replace(
+                self.funnel, reach=target.reach, lateral=target.lateral,
+                heading=target.heading))
         self.planner = lot_planner(config.lot, config.vehicle, self.expert.planner,
                                    str(self.base.device))
         self.angles = steer_angles(config, self.aids.brake or BrakeConfig(), self.base.device)
@@ -297,24 +339,53 @@ class Teacher:
         self.intervened = torch.zeros(self.base.num_envs, dtype=torch.bool,
                                       device=self.base.device)
 
+    def ends_short(self, pose: torch.Tensor, reverses: torch.Tensor, present: torch.Tensor
+                   ) -> torch.Tensor:
+        """Where a reversing pass ends short of contact (``reverse_margin``), bool (n,): the
+        rows of ``reverses`` (n,) whose car box at ``pose`` (n, 3), moved that far straight
+        back, would touch an obstacle of ``present`` (n, M); none without a margin."""
+        if self.reverse_margin == 0:
+            return torch.zeros_like(reverses)
+        config = self.base.config
+        back = torch.full_like(pose[:, 0], -self.reverse_margin / config.vehicle.dt)
+        _, near = move(pose, back, torch.zeros_like(back), present, self.base.world, config)
+        return reverses & near
+
+    def law_is_clear(self, sim: ParkingState, rows: torch.Tensor) -> torch.Tensor:
+        """Whether the law, driving from the cars of ``rows`` (n,) int64 in the gear each
+        moves in, goes ``handover`` steps of dt without touching an obstacle, bool (n,)."""
+        config, law = self.base.config, self.aids.docking
+        pose, goal, present = sim.pose[rows], sim.goal[rows], sim.present[rows]
+        reverses = sim.speed[rows] < 0
+        engaged = torch.ones_like(reverses)
+        braked, clear = torch.zeros_like(reverses), torch.ones_like(reverses)
+        for _ in range(self.handover):
+            error = error_from_goal(pose, goal)
+            braked = braked | self.ends_short(pose, reverses, present)
+            _, reverses = docking_phase(error, engaged, reverses, braked, law)
+            v, delta = docking_action(error, reverses, law, config.vehicle)
+            ahead, braked = move(pose, v, delta, present, self.base.world, config)
+            clear = clear & ~braked
+            pose = torch.where(braked[:, None], pose, ahead)
+        return clear
+
     @torch.no_grad()
     def label(self) -> torch.Tensor:
         sim, law = self.base.state, self.aids.docking
         error = error_from_goal(sim.pose, sim.goal)
         funnel = in_funnel(error, law) | in_settle(error, law)
+        if self.handover:
+            rows = (in_funnel(error, self.funnel) & ~funnel).nonzero()[:, 0]
+            funnel = funnel.index_put((rows,), self.law_is_clear(sim, rows))
         reverses = funnel & (sim.speed < 0)
-        braked = self.state.braked
-        if self.reverse_margin > 0:  # the pass ends short of contact, as if braked there
-            config = self.base.config
-            back = torch.full_like(sim.speed, -self.reverse_margin / config.vehicle.dt)
-            _, near = move(sim.pose, back, torch.zeros_like(back), sim.present,
-                           self.base.world, config)
-            braked = braked | (reverses & near)
+        # the pass ends short of contact, as if braked there
+        braked = self.state.braked | self.ends_short(sim.pose, reverses, sim.present)
         self.state = self.state._replace(braked=braked, docking_engaged=funnel,
                                          docking_reverses=reverses)
         # the gear the car (the student) moves in, held
         action = torch.stack(plan_control(self.planner, sim.pose, sim.speed, sim.goal_slot,
-                                          self.hold.keep_in(sim, self.base))[:2], -1)
+                                          self.hold.keep_in(sim, self.base),
+                                          (self.base.world, sim.present))[:2], -1)
         control = aided_control(AidedState(sim, self.state), action,
                                 self.base.world, self.angles, self.base.config, self.aids)
         self.state, self.intervened = control.aids, control.intervened
@@ -619,11 +690,14 @@ def data_path(out: Path, iteration: int) -> Path:
 def teacher_planner(cfg: DistillConfig, planner: PlannerConfig | None = None
                     ) -> PlannerConfig:
     """The teacher's planner: ``planner`` (default :class:`PlannerConfig`) with the run's gear
-    hold and, where set, its target's lateral and heading bounds."""
-    target = {name: value for name, value in (("lateral", cfg.target_lateral),
-                                              ("heading", cfg.target_heading))
-              if value is not None}
-    return dataclasses.replace(planner or PlannerConfig(), gear_hold=cfg.gear_hold, **target)
+    hold and car margin and, where set, its target's lateral and heading bounds, its headings
+    and the law's funnel."""
+    given = {name: value for name, value in (
+        ("lateral", cfg.target_lateral), ("heading", cfg.target_heading),
+        ("headings", cfg.planner_headings), ("law_lateral", cfg.funnel_lateral),
+        ("law_heading", cfg.funnel_heading)) if value is not None}
+    return dataclasses.replace(planner or PlannerConfig(), gear_hold=cfg.gear_hold,
+                               car_margin=cfg.car_margin, **given)
 
 
 def distill(teacher_path: str, out: Path, cfg: DistillConfig,
@@ -648,7 +722,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     features = Compose(*[t.clone() for t in inputs[:-1]
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
     teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, teacher_planner(cfg, planner),
-                      cfg.reverse_margin)
+                      cfg.reverse_margin, cfg.handover)
     actor, _ = build_models(scfg)
     high = base.action_spec.space.high[0]
     exponents = torch.tensor([cfg.speed_exponent, cfg.steer_exponent], device=base.device)
@@ -685,6 +759,11 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
             else ")"
     if cfg.reverse_margin:
         source += f" (its law's reversing passes ending {cfg.reverse_margin:g} m short of contact)"
+    if cfg.car_margin:
+        source += f" (its planner keeping {cfg.car_margin:g} m off the parked cars)"
+    if cfg.handover:
+        source += (f" (its law taking over beyond the target only where {cfg.handover} steps of "
+                   f"it ahead touch nothing)")
     dagger = "DAgger after the first"
     if cfg.collision_weight != 1.0:
         dagger += (f"; the states up to {cfg.collision_horizon} steps before its own "

@@ -24,7 +24,11 @@ class PlannerConfig:
     the slot axis from the goal, within ``lateral`` m and ``heading`` rad of it. It drives at
     ``speed`` m/s, looking ahead two arcs of ``control_step`` m; a gear change costs
     ``switch_cost`` m; reading the cost between cells, one no path leaves counts
-    ``blocked_cost`` m dearer than the others. After the car changes gear it keeps the new
+    ``blocked_cost`` m dearer than the others; with ``car_margin`` m > 0 its exact checks
+    also refuse an arc whose end brings the car box, grown by that much, onto a parked car or
+    a wall it was clear of before the arc (the tables know slots, not which hold a car: this
+    keeps the control off the cars it would otherwise only graze past, which the brake
+    stops). After the car changes gear it keeps the new
     one for ``gear_hold`` m of travel wherever a look-ahead in it is open (0: the greedy
     choice at every step, which can cycle forwards and back at a lane's edge; see
     :class:`~torchpark.experts.planner.GearHold`). The docking law takes over from it within
@@ -54,6 +58,7 @@ class PlannerConfig:
     law_lateral: float | None = None  # m
     law_heading: float | None = None  # rad
     gear_hold: float = 0.0  # m
+    car_margin: float = 0.0  # m
 
     def __post_init__(self) -> None:
         check_types(self)
@@ -69,7 +74,7 @@ class PlannerConfig:
         require(2 <= self.steers <= 64, "PlannerConfig.steers", "an int in [2, 64]",
                 self.steers)
         for name in ("reverse_cost", "switch_cost", "clearance", "margin", "band_cost",
-                     "blocked_cost", "reach_min", "gear_hold"):
+                     "blocked_cost", "reach_min", "gear_hold", "car_margin"):
             value = getattr(self, name)
             require(math.isfinite(value) and value >= 0, f"PlannerConfig.{name}",
                     "finite, >= 0", value)

@@ -41,6 +41,7 @@ from torchpark.sim.geometry import OrientedBoxes, oriented_boxes, separation, wr
 from torchpark.sim.layout import LotLayout, build_layout
 from torchpark.sim.step import ParkingState
 from torchpark.sim.vehicle import gear_travel, vehicle_obb
+from torchpark.sim.world import World, touches_obstacle
 
 
 class Grid(NamedTuple):
@@ -258,8 +259,18 @@ def interpolated_cost(value: Tensor, row: Tensor, pose: Tensor, grid: Grid,
     return torch.where(finite.any(-1), (weight * cost).sum(-1), UNREACHABLE)
 
 
+def near_cars(planner: Planner, pose: Tensor, cars: tuple[World, Tensor]) -> Tensor:
+    """Whether the car box at poses (N, J, 3), grown by ``cfg.car_margin`` m
+    (:func:`~torchpark.aids.brake.fence`), touches a present obstacle (``cars``: the world
+    and its (N, M) present mask), bool (N, J)."""
+    world, present = cars
+    return touches_obstacle(fence(pose, planner.vehicle, planner.cfg.car_margin), world,
+                            present[:, None, :])
+
+
 def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tensor,
-                 keep_gear: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+                 keep_gear: Tensor | None = None, cars: tuple[World, Tensor] | None = None
+                 ) -> tuple[Tensor, Tensor, Tensor]:
     """The planner's control at poses (N, 3) moving at ``speed`` (N,) m/s towards slots
     ``goal_slot`` (N,): (v m/s, delta rad, cost-to-go m), each (N,). Of the sequences of
     two arcs of ``cfg.control_step`` m from the exact pose, the one whose end has the least
@@ -270,7 +281,10 @@ def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tenso
     the first arc's gear and steering; v is ``speed`` in that gear, 0 where every sequence
     is blocked or ends among cells no path leaves. Rows of ``keep_gear`` (N,) bool
     (:class:`GearHold`) choose among the sequences whose first arc is in the gear the car
-    moves in, where one of them is open."""
+    moves in, where one of them is open. With ``cars`` (the env's world and (N, M) present
+    obstacles) and ``cfg.car_margin`` > 0, a sequence either of whose arcs ends with the car
+    box grown by the margin on an obstacle it was clear of before (:func:`near_cars`) is
+    blocked, as a wall's is."""
     prim, cfg = planner.control, planner.cfg
     gear = torch.sign(prim.travel)
     first = arcs(pose, prim.travel, prim.curvature)  # (N, K, 3)
@@ -290,7 +304,14 @@ def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tenso
     own_first = prim.cost * torch.where(off_first, 1.0, cfg.slot_cost)  # (N, K)
     own_second = prim.cost * torch.where(off_second, 1.0, cfg.slot_cost)  # (N, K, K)
     total = ahead + again + own_second + (own_first + switch)[:, :, None]
-    total = torch.where(walled_first[:, :, None] & walled_second, total, math.inf)
+    open_ = walled_first[:, :, None] & walled_second
+    if cars is not None and cfg.car_margin > 0:
+        near_now = near_cars(planner, pose[:, None], cars)  # (N, 1)
+        near_first = near_cars(planner, first, cars) & ~near_now  # (N, K)
+        near_second = near_cars(planner, second.reshape(n, k * k, 3), cars).view(n, k, k)
+        open_ = open_ & ~near_first[:, :, None] & ~(
+            near_second & ~(near_first | near_now)[:, :, None])
+    total = torch.where(open_, total, math.inf)
     if keep_gear is not None:
         kept = torch.where(((gear == moving) | (moving == 0))[:, :, None], total, math.inf)
         open_kept = kept.flatten(1).amin(-1) < 0.5 * UNREACHABLE
@@ -369,5 +390,6 @@ class PlannerExpert:
     def __call__(self, td: TensorDictBase) -> TensorDictBase:
         state = self.env.state
         v, delta, _ = plan_control(self.planner, state.pose, state.speed, state.goal_slot,
-                                   self.hold.keep_in(state, self.env))
+                                   self.hold.keep_in(state, self.env),
+                                   (self.env.world, state.present))
         return td.set("action", torch.stack((v, delta), -1))
