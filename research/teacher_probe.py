@@ -1,15 +1,16 @@
 """The distiller's teacher driving the evaluator's lots: how often it parks, stalls and needs
 its brake, per occupancy level, and in which phase the brake acts (research/experiments.md).
+From the repository's root, the committed student's teacher:
 
-    python research/teacher_probe.py --headings 96 --funnel 0.6 0.55 --handover 50 \
+    python -m research.teacher_probe --headings 96 --funnel 0.6 0.55 --handover 50 \
         --car-margin 0.2 --levels 0 0.9 --cache /tmp/tables
 
-The teacher is the committed student's (results/policy_alone/README.md: the expert of
-``results/fast/`` with ``--settle 0.05 --retry 1 --gear-hold 0.75 --target-lateral 0.25
---target-heading 0.12 --reverse-margin 0.5``) unless changed here; the lots are the
-evaluator's (``--seed 1``, 200 a level), through the committed student's env. ``--cache``
-keeps each planner's tables (a torch file of one tensor) between runs: the 96-heading
-tables take about 6 min to build on two cores.
+Without those four options it is the teacher before the look-ahead (that of
+research/results/reverse_margin/: the expert of ``results/fast/`` with ``--settle 0.05
+--retry 1 --gear-hold 0.75 --target-lateral 0.25 --target-heading 0.12 --reverse-margin
+0.5``). The lots are the evaluator's (``--seed 1``, 200 a level), through the committed
+student's env. ``--cache`` keeps each planner's tables (a torch file of one tensor) between
+runs: the 96-heading tables take about 6 min to build on two cores.
 """
 
 from __future__ import annotations
