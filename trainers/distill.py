@@ -132,6 +132,8 @@ STALL_TRAVEL = 5.0
 # ... from a state more than this far from its goal, m: nearer, the docking law's turns to
 # line the car up to the millimetre cover metres of path without going far.
 STALL_AWAY = 2.0
+# The teacher's longest look-ahead before its law takes over (Teacher's handover), steps of dt.
+HANDOVER_LIMIT = 1000
 
 
 @dataclass(frozen=True)
@@ -260,8 +262,8 @@ class DistillConfig:
         require(self.steer_bins == 0 or (3 <= self.steer_bins <= 255
                                          and self.steer_bins % 2 == 1),
                 "DistillConfig.steer_bins", "0, or an odd int in [3, 255]", self.steer_bins)
-        require(0 <= self.handover <= 1000, "DistillConfig.handover", "an int in [0, 1000]",
-                self.handover)
+        require(0 <= self.handover <= HANDOVER_LIMIT, "DistillConfig.handover",
+                f"an int in [0, {HANDOVER_LIMIT}]", self.handover)
         require(self.planner_headings is None or 8 <= self.planner_headings <= 1024,
                 "DistillConfig.planner_headings", "None or an int in [8, 1024]",
                 self.planner_headings)
@@ -319,8 +321,8 @@ class Teacher:
                 f"in [0, {thinnest:g}] m (LotConfig.thinnest_obstacle, min(wall_thickness, "
                 f"car_width))", reverse_margin)
         self.reverse_margin = reverse_margin
-        require(is_integer(handover) and 0 <= handover <= 1000, "handover",
-                "an int in [0, 1000] (steps of dt)", handover)
+        require(is_integer(handover) and 0 <= handover <= HANDOVER_LIMIT, "handover",
+                f"an int in [0, {HANDOVER_LIMIT}] (steps of dt)", handover)
         self.handover = handover
         # with a look-ahead the law's own funnel is the planner's target, and the wider one
         # is entered only where the look-ahead is clear
