@@ -86,6 +86,11 @@ class BinnedGearHead(nn.Module):
         loc = torch.atanh(self.action(z).clamp(-1.0 + EDGE, 1.0 - EDGE))
         return torch.cat([loc, torch.zeros_like(loc)], -1) if self.scale_outputs else loc
 
+    def label_bin(self, steer: Tensor) -> Tensor:
+        """The bin (N,) int64 whose centre is nearest each steering ``steer`` (N,) in
+        [-1, 1]."""
+        return ((steer + 1.0) / (2.0 * self.half)).round().long().clamp(0, self.bins - 1)
+
     def imitation_error(self, z: Tensor, label: Tensor) -> Tensor:
         """The fit's error (N,) at inputs ``z`` (N, D) against the teacher's labels (N, 2)
         (speed, steer) in [-1, 1]: :func:`imitation_error`'s gear and speed terms and, for the
@@ -98,9 +103,24 @@ class BinnedGearHead(nn.Module):
         u = torch.stack((torch.tanh(gear[:, 0]), torch.tanh(forward[:, 0]), steer,
                          torch.tanh(reverse[:, 0]), steer), -1)
         part = torch.where((label[:, 0] >= 0)[:, None], forward, reverse)
-        k = ((steer + 1.0) / (2.0 * self.half)).round().long().clamp(0, self.bins - 1)
+        k = self.label_bin(steer)
         logits, offsets = part[:, 1:1 + self.bins], part[:, 1 + self.bins:]
         offset = torch.tanh(offsets).gather(-1, k[:, None])[:, 0] * self.half
         return (imitation_error(u, label)
                 + CLASS_WEIGHT * nn.functional.cross_entropy(logits, k, reduction="none")
                 + OFFSET_WEIGHT * (self.centres[k] + offset - steer).pow(2) / self.half ** 2)
+
+    def hazard_error(self, z: Tensor, hazards: Tensor, label: Tensor) -> Tensor:
+        """-log of each gear's probability of a bin outside its hazards, summed over the two
+        gears, (N,): at inputs ``z`` (N, D), ``hazards`` (N, 2, bins) bool (forward, reverse:
+        the bins whose arc touches an obstacle, :meth:`trainers.distill.Teacher.hazards`),
+        the label's (N, 2) own bin allowed in its own gear; 0 for a gear whose every bin is
+        a hazard (nothing there to steer away to)."""
+        _, forward, reverse = self._parts(z)
+        logits = torch.stack((forward[:, 1:1 + self.bins], reverse[:, 1:1 + self.bins]), 1)
+        rows = torch.arange(z.shape[0], device=z.device)
+        allowed = ~hazards
+        allowed[rows, (label[:, 0] < 0).long(), self.label_bin(label[:, 1])] = True
+        allowed = allowed | ~allowed.any(-1, keepdim=True)
+        safe = logits.masked_fill(~allowed, -torch.inf).logsumexp(-1)
+        return (logits.logsumexp(-1) - safe).sum(-1)
