@@ -199,7 +199,7 @@ def plot_dagger(columns: dict[str, np.ndarray]) -> Figure:
     for ax in axes[:2]:
         ax.set_ylim(-0.02, 1.02)
     axes[0].legend(loc="lower right", fontsize=8)
-    axes[-1].set_xlabel("DAgger iteration (0: behaviour cloning)")
+    axes[-1].set_xlabel("DAgger iteration (from 0, as in dagger.csv)")
     axes[-1].set_xticks(it)
     fig.suptitle("Distillation: the student's checks after each iteration")
     return fig
