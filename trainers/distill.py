@@ -263,11 +263,12 @@ class DistillConfig:
                 self.near_goal)
         require(0.0 <= self.noise <= 1.0, "DistillConfig.noise", "in [0, 1]", self.noise)
         # reverse_margin's upper bound is the env's lot's: Teacher checks it
-        for name in ("settle", "retry", "reverse_margin", "gear_hold", "car_margin",
-                     "hazard_weight"):
+        for name in ("settle", "retry", "reverse_margin", "gear_hold", "car_margin"):
             value = getattr(self, name)
             require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
                     value)
+        require(0.0 <= self.hazard_weight < float("inf"), "DistillConfig.hazard_weight",
+                "finite, >= 0", self.hazard_weight)
         # the funnel's lower bounds (the target's) are PlannerConfig's to check
         for name, (high, unit) in (("target_lateral", (math.inf, "m")),
                                    ("target_heading", (math.pi, "rad")),
@@ -822,7 +823,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, teacher_planner(cfg, planner),
                       cfg.reverse_margin, cfg.handover)
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
-    data, rows = [], []  # (inputs, labels, weights) per iteration
+    data, rows = [], []  # (inputs, labels, weights, hazards) per iteration
     frames = approach = first = 0
     elapsed = 0.0
     if saved is not None:
