@@ -46,8 +46,9 @@ def test_a_payload_checkpoint_runs_no_code(payload_checkpoint, tmp_path, capsys)
     assert err.count("is not a torchpark checkpoint") == 2 and "Traceback" not in err
 
 
-@pytest.mark.parametrize("content", [b"# README\nnot a checkpoint\n", b"PK\x03\x04trunc", b""],
-                         ids=["text", "truncated-zip", "empty"])
+@pytest.mark.parametrize("content", [b"# README\nnot a checkpoint\n", b"PK\x03\x04trunc", b"",
+                                     b"junk\n"],
+                         ids=["text", "truncated-zip", "empty", "a legacy unpickler's key"])
 def test_a_file_that_is_not_a_checkpoint_names_its_path(tmp_path, content):
     path = tmp_path / "model.pt"
     path.write_bytes(content)

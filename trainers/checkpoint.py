@@ -34,7 +34,7 @@ def load_checkpoint(path: str | Path, device: torch.device | str = "cpu",
     try:
         checkpoint = torch.load(path, map_location=device, weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, OSError,
-            ValueError, AttributeError, TypeError) as err:
+            ValueError, AttributeError, TypeError, KeyError, IndexError) as err:
         raise ValueError(f"checkpoint {str(path)!r} is not a torchpark checkpoint (a torch "
                          f"file of tensors and plain data): {_first_line(err)}") from None
     if not isinstance(checkpoint, dict):
