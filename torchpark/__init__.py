@@ -23,6 +23,7 @@ from torchpark.transforms.features import (
     GearTravelFeatures,
     GoalFrameFeatures,
     ScanMemory,
+    TurnFeatures,
 )
 
 register()  # gymnasium.make("torchpark/Parking-v0")
@@ -47,5 +48,6 @@ __all__ = [
     "PowerActionMap",
     "RewardConfig",
     "ScanMemory",
+    "TurnFeatures",
     "VehicleConfig",
 ]

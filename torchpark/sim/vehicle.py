@@ -90,3 +90,20 @@ def gear_travel(speed: Tensor, gear: Tensor, travel: Tensor, step_time: float
     moved = speed.abs() * step_time
     changed = (now != 0) & (now != gear)
     return torch.where(now != 0, now, gear), torch.where(changed, moved, travel + moved)
+
+
+# A step that turns the heading by less than this (its sine), rad, is straight: it keeps the
+# turn before it (a steer a degree off centre at the planner's 2 m/s turns 1e-3 rad a step).
+STRAIGHT_TURN = 1e-3
+
+
+def heading_turn(before: Tensor, now: Tensor, turn: Tensor) -> Tensor:
+    """The way the car last turned its heading, after a step from heading ``before`` [..., 2]
+    (cos, sin) to ``now`` [..., 2], from ``turn`` [...] before it: +1 anticlockwise, -1
+    clockwise (in either gear: a multi-point turn, forwards on one lock and back on the
+    other, turns one way throughout), kept through a step that turns less than
+    ``STRAIGHT_TURN`` rad (0: none yet). What the planner's turn hold follows
+    (``torchpark.experts.planner.TurnHold``) and the policy's turn feature reads
+    (``torchpark.TurnFeatures``)."""
+    rotation = before[..., 0] * now[..., 1] - before[..., 1] * now[..., 0]  # sin of the turn
+    return torch.where(rotation.abs() > STRAIGHT_TURN, torch.sign(rotation), turn)
