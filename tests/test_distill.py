@@ -392,15 +392,15 @@ def test_a_student_with_the_turn_features_reads_them_last_and_predicts_with_them
     assert terminated or truncated
     torch.testing.assert_close(torch.stack(poses), evaluated.poses[:len(poses), 0], rtol=0,
                                atol=0)
-    assert state.shape == (2 + 3,)
+    assert state.shape == (2 + 4,)
     # the state's turn is the one the teacher's hold counts, following the same car
     obs, info = env.reset(seed=6)
     hold, state, turns = TurnHold(0.2, 1, "cpu"), None, set()
-    actions = np.random.default_rng(0).uniform(-1, 1, (40, 2)).astype(np.float32)
+    actions = np.array([[0.3, 1.0]] * 15 + [[0.3, -1.0]] * 15, np.float32)  # left, right
     for action in actions:
         _, state = agent.predict(obs, info, state=state)
-        assert state[-1] == hold.turn_in(env.unwrapped.env.state).item()
-        turns.add(float(state[-1]))
+        assert state[-2] == hold.turn_in(env.unwrapped.env.state).item()
+        turns.add(float(state[-2]))
         obs, _r, terminated, truncated, info = env.step(action)
         if terminated or truncated:
             break

@@ -25,7 +25,7 @@ from torchpark import (
     TurnFeatures,
 )
 from torchpark.experts.planner import GearHold, TurnHold
-from torchpark.sim.vehicle import STRAIGHT_TURN, gear_travel, heading_turn
+from torchpark.sim.vehicle import TURN_SWING, gear_travel, heading_turn
 from torchpark.transforms.features import (
     box_edge_distance,
     goal_in_vehicle_frame,
@@ -181,18 +181,24 @@ def test_gear_features_without_history_and_bad_arguments():
         env.transform._step(TensorDict({}, [2]), env.base_env.reset())
 
 
-def test_heading_turn_is_the_rotations_sign_kept_through_straight_steps():
+def test_heading_turn_is_kept_until_the_heading_swings_back_past_its_swing():
     def heading(psi):
         return torch.tensor([[math.cos(psi), math.sin(psi)]])
 
-    turn, seen = torch.zeros(1), []
-    for before, now in ((0.0, 0.0), (0.0, 0.05), (3.1, -3.1), (-3.1, 3.1),
-                        (1.0, 1.0 + 0.5 * STRAIGHT_TURN), (1.0, 1.0 - 2 * STRAIGHT_TURN),
-                        (2.0, 2.0)):
-        turn = heading_turn(heading(before), heading(now), turn)
-        seen.append(turn.item())
+    turn, swing, seen = torch.zeros(1), torch.zeros(1), []
+    third = TURN_SWING / 3
+    # (heading before, heading now): angles in units of a third of the swing
+    for before, now in ((0, 0), (0, 2), (2, 1), (1, 4), (4, 3), (3, 5), (5, 3), (3, 1.5),
+                        (1.5, 1), (1, 3), (3, 1), (1, 4.5)):
+        turn, swing = heading_turn(heading(before * third), heading(now * third), turn, swing)
+        seen.append((turn.item(), round(swing.item() / third, 3)))
+    assert seen == [(0, 0), (0, 2), (0, 1), (1, 0), (1, 1), (1, 0), (1, 2), (-1, 0),
+                    (-1, 0), (-1, 2), (-1, 0), (1, 0)]
     # across +-pi the short way round counts: 3.1 to -3.1 turns anticlockwise
-    assert seen == [0.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0]
+    turn, swing = heading_turn(heading(3.1), heading(-3.1), torch.zeros(1), torch.zeros(1))
+    assert turn.item() == 0 and swing.item() == pytest.approx(2 * math.pi - 6.2, abs=1e-5)
+    turn, _ = heading_turn(heading(3.1), heading(-2.8), torch.zeros(1), torch.zeros(1))
+    assert turn.item() == 1.0
 
 
 @pytest.mark.parametrize("sync_free", [False, True])
@@ -216,6 +222,7 @@ def test_turn_features_count_what_the_planners_turn_hold_counts(sync_free):
         turned |= set(expected.tolist())
         action = (torch.rand(n, 2, generator=generator) * 2 - 1) * torch.tensor([5.0, 0.785])
         action[:8, 1] = 0.0  # straight keeps the turn
+        action[8:16, 0] = 0.5 * action[8:16, 0].sign()  # slow: small swings keep it
         td["action"] = action
         td, td = tenv.step_and_maybe_reset(td)
         ends += int(env.state.steps.eq(0).sum())

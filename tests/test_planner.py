@@ -28,7 +28,7 @@ from torchpark.experts.planner import (
     plan_control,
     target_cells,
 )
-from torchpark.sim.vehicle import bicycle_step, vehicle_boxes
+from torchpark.sim.vehicle import TURN_SWING, bicycle_step, vehicle_boxes
 from torchpark.sim.world import touches_obstacle
 
 # A coarse grid: its tables build in seconds on the default lot.
@@ -213,13 +213,14 @@ def test_turn_hold_follows_the_heading_through_either_gear_and_a_new_episode():
     hold = TurnHold(0.2, 2, "cpu")
     state = types.SimpleNamespace(pose=torch.zeros(2, 3), steps=torch.zeros(2))
     seen = []
-    for psi, steps in ((0.0, 0), (0.1, 1), (0.1, 2), (0.1005, 3), (0.3, 4), (0.2, 5),
-                       (0.2, 0)):
+    # the second car mirrors the first; the last pose starts a new episode; headings in
+    # quarters of the swing
+    for psi, steps in ((0, 0), (2, 1), (5, 2), (3, 3), (6, 4), (1, 5), (1, 0)):
+        psi = psi * TURN_SWING / 4
         state.pose = torch.tensor([[0.0, 0.0, psi], [5.0, 1.0, -psi]])
         state.steps = torch.tensor([steps, steps])
         seen.append(hold.turn_in(state).tolist())
-    # straight (0.0005 rad) and standing keep the turn; a fresh episode has none
-    assert seen == [[0, 0], [1, -1], [1, -1], [1, -1], [1, -1], [-1, 1], [0, 0]]
+    assert seen == [[0, 0], [0, 0], [1, -1], [1, -1], [1, -1], [-1, 1], [0, 0]]
     assert TurnHold(0.0, 2, "cpu").turn_in(state) is None
 
 

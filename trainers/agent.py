@@ -107,9 +107,10 @@ class TrainedAgent:
         (``AgentConfig.scan_memory``) or the turn features (``AgentConfig.turn_features``)
         reads the episode so far, as a recurrent policy: pass back the state the last call
         returned ((S,) or (B, S): the gear and its travel, m, then the remembered scans,
-        flattened, then the heading's cos and sin and the turn), None at an episode's first
-        observation, and, as SB3 does, ``episode_start`` (B,) bool for the rows whose
-        observation is a new episode's first (every row when ``state`` is None)."""
+        flattened, then the heading's cos and sin, the turn and its swing, rad), None at an
+        episode's first observation, and, as SB3 does, ``episode_start`` (B,) bool for the
+        rows whose observation is a new episode's first (every row when ``state`` is
+        None)."""
         obs = torch.as_tensor(np.asarray(observation, np.float32))
         dim = self._inputs.base_env.obs_dim
         if obs.dim() not in (1, 2) or obs.shape[-1] != dim:
@@ -150,7 +151,7 @@ class TrainedAgent:
             now = memory.scan(batch)[:, None]
             parts.append(torch.cat((now, memory.history[:, :-1]), 1).flatten(1))
         if turn is not None:
-            parts.append(torch.cat((turn.heading, turn.turn[:, None]), -1))
+            parts.append(torch.cat((turn.heading, turn.turn[:, None], turn.swing[:, None]), -1))
         new_state = torch.cat(parts, -1).cpu().numpy()
         return (action[0], new_state[0]) if single else (action, new_state)
 
@@ -164,7 +165,7 @@ class TrainedAgent:
         b = batch.shape[0]
         width = (2 if gear is not None else 0) + (
             memory.scans * (4 + memory.n_rays) if memory is not None else 0) + (
-            3 if turn is not None else 0)
+            4 if turn is not None else 0)
         going_on = torch.zeros(b, dtype=torch.bool, device=batch.device)
         before = torch.zeros(b, width, device=batch.device)
         if state is not None:
@@ -192,7 +193,8 @@ class TrainedAgent:
             before = before[:, cut:]
         if turn is not None:
             now = TurnFeatures.heading_of(batch)
-            turn.turn, turn.heading = heading_turn(before[:, :2], now, before[:, 2]), now
+            turn.turn, turn.swing = heading_turn(before[:, :2], now, before[:, 2], before[:, 3])
+            turn.heading = now
             turn.start_rows(~going_on, now)
         return going_on
 

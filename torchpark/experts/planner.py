@@ -365,10 +365,11 @@ class GearHold:
 
 class TurnHold:
     """The planner's commitment to a turn (``PlannerConfig.turn_cost``): per env, the way the
-    car last turned its heading (:func:`~torchpark.sim.vehicle.heading_turn`) and its heading
-    before the step. Where two ways round a lot's end cost alike, the greedy control picks by
-    centimetres the student cannot see, and a car between them turns one way and then the
-    other (research/experiments.md); a turn costing ``turn_cost`` m to give up keeps the one
+    car has been turning its heading and how far it has swung back
+    (:func:`~torchpark.sim.vehicle.heading_turn`), and its heading before the step. Where two
+    ways round a lot's end cost alike, the greedy control picks by centimetres the student
+    cannot see, and a car between them turns one way and then the other
+    (research/experiments.md); a turn costing ``turn_cost`` m to give up keeps the one
     begun.
 
     It follows the car, not the commands, as :class:`GearHold` does."""
@@ -376,18 +377,21 @@ class TurnHold:
     def __init__(self, cost: float, num_envs: int, device: torch.device | str) -> None:
         self.cost = cost
         self.turn = torch.zeros(num_envs, device=device)
+        self.swing = torch.zeros(num_envs, device=device)
         self.heading = torch.zeros(num_envs, 2, device=device)
 
     def turn_in(self, state: ParkingState) -> Tensor | None:
         """The way each car in ``state`` has been turning (N,) (+1, -1; 0 in a fresh episode,
-        ``state.steps`` 0), counting the step since the last call; None when there is no
-        hold (``cost`` 0)."""
+        ``state.steps`` 0, until its heading has turned), counting the step since the last
+        call; None when there is no hold (``cost`` 0)."""
         if self.cost == 0:
             return None
         psi = state.pose[:, 2]
         now = torch.stack((torch.cos(psi), torch.sin(psi)), -1)
         fresh = state.steps == 0
-        self.turn = torch.where(fresh, 0.0, heading_turn(self.heading, now, self.turn))
+        turn, swing = heading_turn(self.heading, now, self.turn, self.swing)
+        self.turn = torch.where(fresh, 0.0, turn)
+        self.swing = torch.where(fresh, 0.0, swing)
         self.heading = now
         return self.turn
 

@@ -225,8 +225,9 @@ class GearTravelFeatures(Transform):
 
 
 class TurnFeatures(Transform):
-    """Writes ``out_key`` = cat(``in_key``, turn): the way the car last turned its heading
-    (:func:`heading_turn`: +1 anticlockwise, -1 clockwise, 0 before any turn in the episode),
+    """Writes ``out_key`` = cat(``in_key``, turn): the way the car has been turning its heading
+    (:func:`heading_turn`: +1 anticlockwise, -1 clockwise, 0 before its heading has turned
+    ``TURN_SWING`` in the episode; kept until it swings back as far),
     counted from the headings the observations report (columns cos psi, sin psi of the
     paper's observation, which ``in_key`` starts with).
 
@@ -235,9 +236,9 @@ class TurnFeatures(Transform):
     observation with either lock, depending on which way the car was turning. With this
     feature the student sees what the label depends on.
 
-    Stateful per env (the last heading (N, 2), the turn (N,)): ``_reset`` starts the rows it
-    resets (all, or those of the ``"_reset"`` mask), each step turns by the heading's
-    change. Called on a batch of states outside an env (``transform(td)``), it has no
+    Stateful per env (the last heading (N, 2), the turn and its swing (N,)): ``_reset``
+    starts the rows it resets (all, or those of the ``"_reset"`` mask), each step turns by
+    the heading's change. Called on a batch of states outside an env (``transform(td)``), it has no
     history: every row's turn is 0.
 
     Args:
@@ -250,6 +251,7 @@ class TurnFeatures(Transform):
         super().__init__(in_keys=[in_key], out_keys=[out_key])
         self.heading: Tensor | None = None
         self.turn: Tensor | None = None
+        self.swing: Tensor | None = None
 
     @staticmethod
     def heading_of(source: Tensor) -> Tensor:
@@ -279,19 +281,21 @@ class TurnFeatures(Transform):
             fresh = tensordict.get("_reset").reshape(fresh.shape).to(now.device)
         else:
             self.heading, self.turn = now.clone(), torch.zeros_like(now[..., 0])
+            self.swing = torch.zeros_like(self.turn)
         self.start_rows(fresh, now)
         return self._write(tensordict_reset, self.turn)
 
     def start_rows(self, rows: Tensor, heading: Tensor) -> None:
         """The rows ``rows`` (N,) bool start an episode at ``heading`` (N, 2): no turn."""
         self.turn = torch.where(rows, 0.0, self.turn)
+        self.swing = torch.where(rows, 0.0, self.swing)
         self.heading = torch.where(rows[..., None], heading, self.heading)
 
     def _step(self, tensordict, next_tensordict):
         if self.turn is None:
             raise RuntimeError("TurnFeatures: step before reset (reset the env first)")
         now = self.heading_of(next_tensordict.get(self.in_keys[0]))
-        self.turn = heading_turn(self.heading, now, self.turn)
+        self.turn, self.swing = heading_turn(self.heading, now, self.turn, self.swing)
         self.heading = now
         return self._write(next_tensordict, self.turn)
 
