@@ -7,7 +7,6 @@ name."""
 
 from __future__ import annotations
 
-import copy
 import csv
 import dataclasses
 
@@ -17,14 +16,14 @@ import torch
 from tensordict import TensorDict
 from torch.utils._pytree import tree_flatten
 from torchrl.envs import Compose, TransformedEnv
-from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+from torchrl.envs.utils import step_mdp
 
 import trainers.distill as distill_module
 from tests.test_agent import rows_predict_as_alone
 from torchpark import AidsConfig, LotConfig, ParkingConfig, ParkingEnv
 from torchpark.aids.docking import docking_action, error_from_goal
 from torchpark.experts import PlannerConfig
-from torchpark.experts.planner import TurnHold, plan_control
+from torchpark.experts.planner import plan_control
 from torchpark.sim.step import move
 from torchpark.transforms.actions import PowerActionMap, gear_inverse, power_map_inverse
 from torchpark.transforms.features import GoalFrameFeatures
@@ -48,7 +47,6 @@ from trainers.distill import (
 from trainers.evaluate import checkpoint_agent, run_level
 from trainers.heads import BinnedGearHead
 from trainers.utils import (
-    NORMALISED,
     build_models,
     make_base_env,
     make_ppo_models,
@@ -227,9 +225,7 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("hazard_weight", 0.1),  # without steer_bins
                                           ("hazard_speed", 0.0),
                                           ("hazard_horizon", 0), ("hazard_horizon", 1001),
-                                          ("turn_cost", -0.1), ("turn_cost", 0.375),
-                                          ("turn_cost", float("nan")),
-                                          ("turn_features", 1), ("init", 1)])
+                                          ("init", 1)])
 def test_bad_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=rf"DistillConfig\.{field}"):
         DistillConfig(**{field: value})
@@ -356,100 +352,6 @@ def test_a_student_with_a_scan_memory_reads_it_everywhere_and_predicts_with_it(
     assert not np.array_equal(going_on[1][2:], fresh[1][2:])  # the memory went on
     with pytest.raises(ValueError, match=r"state must be the \(42,\)"):
         agent.predict(after_obs, after_info, state=before[:2])
-
-
-def test_a_student_with_the_turn_features_reads_them_last_and_predicts_with_them(
-        teacher_path, tmp_path, coarse_planner):
-    """The turn joins the student's input last (after the position): its rollouts read the
-    car's turn (-1, 0, +1), its final-approach states, which have no history, one drawn
-    (+1 or -1: without the draw they read 0); its Gymnasium ``predict`` carries the turn as a
-    recurrent state and drives the evaluator's episode to the last bit."""
-    out = tmp_path / "turn"
-    main([teacher_path, "--out", str(out), "--iterations", "1", "--envs", "8", "--steps",
-          "30", "--epochs", "1", "--yardstick", "2", "--approach", "64", "--gear-features",
-          "--position", "--turn-features", "--turn-cost", "0.2"])
-    cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
-    assert cfg.agent.turn_features
-    assert checkpoint["trained_by"].startswith(
-        "distilled (gear head, gear features, turn features, position) from")
-    assert "(its planner keeping the car's turn, 0.2 m to give it up)" in \
-        checkpoint["trained_by"]
-    inputs = torch.load(out / "dagger_data" / "iteration_000.pt")[0]
-    assert inputs.shape[-1] == 23 + 7 + 2 + 2 + 1
-    rollouts = 6 * 30 * 8  # the rollouts' states come first, the final approach's after
-    assert set(inputs[:rollouts, -1].unique().tolist()) == {-1.0, 0.0, 1.0}
-    assert set(inputs[rollouts:, -1].unique().tolist()) == {-1.0, 1.0}
-    path = str(out / "checkpoint_final.pt")
-    evaluated = run_level(checkpoint_agent(path), 0.6, episodes=1, seed=5)
-    agent = load_agent(path)
-    env = agent.gym_env(occupancy=0.6, seed=5)
-    obs, info = env.reset()
-    poses, state = [env.unwrapped.env.state.pose[0].clone()], None
-    for _ in range(int(evaluated.length[0])):
-        action, state = agent.predict(obs, info, state=state)
-        obs, _r, terminated, truncated, info = env.step(action)
-        poses.append(env.unwrapped.env.state.pose[0].clone())
-    assert terminated or truncated
-    torch.testing.assert_close(torch.stack(poses), evaluated.poses[:len(poses), 0], rtol=0,
-                               atol=0)
-    assert state.shape == (2 + 4,)
-    # the state's turn is the one the teacher's hold counts, following the same car
-    obs, info = env.reset(seed=6)
-    hold, state, turns = TurnHold(0.2, 1, "cpu"), None, set()
-    actions = np.array([[0.3, 1.0]] * 15 + [[0.3, -1.0]] * 15, np.float32)  # left, right
-    for action in actions:
-        _, state = agent.predict(obs, info, state=state)
-        assert state[-2] == hold.turn_in(env.unwrapped.env.state).item()
-        turns.add(float(state[-2]))
-        obs, _r, terminated, truncated, info = env.step(action)
-        if terminated or truncated:
-            break
-    assert turns == {-1.0, 0.0, 1.0}
-
-
-def test_a_student_without_the_turn_features_grows_into_one_that_acts_as_it_did(
-        teacher_path, tmp_path, capsys, coarse_planner, monkeypatch):
-    """``--init`` from a student without the turn features and ``--turn-features``: the
-    student starts with the checkpoint's weights and normaliser, the new input's weights 0
-    and its normalisation (0, 1), so it drives as the checkpoint's does whatever the turn."""
-    flags = ["--envs", "4", "--steps", "4", "--epochs", "1", "--dagger-epochs", "1",
-             "--yardstick", "2", "--approach", "8", "--steer-bins", "5", "--position"]
-    main([teacher_path, "--out", str(tmp_path / "first"), "--iterations", "1", *flags])
-    init = str(tmp_path / "first" / "checkpoint_final.pt")
-    _, start = load_trained(init)
-    actors = []
-    rollout = distill_module.rollout
-
-    def recorded(env, actor, *args):
-        actors.append((copy.deepcopy(actor), env.transform[-1].state_dict()))
-        return rollout(env, actor, *args)
-
-    monkeypatch.setattr(distill_module, "rollout", recorded)
-    main([teacher_path, "--out", str(tmp_path / "grown"), "--iterations", "1", "--init", init,
-          "--turn-features", *flags])
-    grown, norm = actors[0]
-    key = "loc.-|-.observation_policy"
-    before = start["obs_norm"]["_extra_state"]
-    after = norm["_extra_state"]
-    assert after[key].shape[-1] == before[key].shape[-1] + 1 == 23 + 7 + 2 + 1
-    assert torch.equal(after[key], torch.cat([before[key], torch.zeros(1)]))
-    assert torch.equal(after[key.replace("loc", "var")],
-                       torch.cat([before[key.replace("loc", "var")], torch.ones(1)]))
-    old = load_agent(init).actor
-    x = torch.randn(64, 32, generator=torch.Generator().manual_seed(0))
-    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        expected = old(TensorDict({NORMALISED: x}, [64]))["action"]
-        for turn in (-1.0, 0.0, 1.0):
-            with_turn = torch.cat([x, torch.full((64, 1), turn)], -1)
-            got = grown(TensorDict({NORMALISED: with_turn}, [64]))["action"]
-            assert torch.equal(got, expected)
-    _, checkpoint = load_trained(str(tmp_path / "grown" / "checkpoint_final.pt"))
-    assert "turn features" in checkpoint["trained_by"]
-    with pytest.raises(SystemExit):  # the other way round: a turn the student cannot read
-        main([teacher_path, "--out", str(tmp_path / "shrunk"), "--iterations", "1", "--init",
-              str(tmp_path / "grown" / "checkpoint_final.pt"), *flags])
-    assert "has agent.turn_features=True, this command's student agent.turn_features=False" \
-        in capsys.readouterr().err
 
 
 def test_a_student_with_binned_steering_is_fitted_and_driven_by_its_bins(teacher_path,
@@ -787,7 +689,6 @@ def test_the_teachers_planner_takes_the_runs_hold_and_target():
     assert teacher_planner(DistillConfig()) == PlannerConfig()
     tight = DistillConfig(gear_hold=0.75, target_lateral=0.25, target_heading=0.12)
     assert teacher_planner(tight) == PlannerConfig(gear_hold=0.75, lateral=0.25, heading=0.12)
-    assert teacher_planner(DistillConfig(turn_cost=0.25)) == PlannerConfig(turn_cost=0.25)
     assert teacher_planner(tight, COARSE_PLAN) == dataclasses.replace(
         COARSE_PLAN, gear_hold=0.75, lateral=0.25, heading=0.12)
     assert teacher_planner(DistillConfig(target_heading=0.1), COARSE_PLAN).lateral \

@@ -22,10 +22,9 @@ from torchpark import (
     ParkingConfig,
     ParkingEnv,
     ScanMemory,
-    TurnFeatures,
 )
-from torchpark.experts.planner import GearHold, TurnHold
-from torchpark.sim.vehicle import TURN_SWING, gear_travel, heading_turn
+from torchpark.experts.planner import GearHold
+from torchpark.sim.vehicle import gear_travel
 from torchpark.transforms.features import (
     box_edge_distance,
     goal_in_vehicle_frame,
@@ -179,66 +178,6 @@ def test_gear_features_without_history_and_bad_arguments():
     env = TransformedEnv(ParkingEnv(2, seed=0), GearTravelFeatures(0.1))
     with pytest.raises(RuntimeError, match="reset"):
         env.transform._step(TensorDict({}, [2]), env.base_env.reset())
-
-
-def test_heading_turn_is_kept_until_the_heading_swings_back_past_its_swing():
-    def heading(psi):
-        return torch.tensor([[math.cos(psi), math.sin(psi)]])
-
-    turn, swing, seen = torch.zeros(1), torch.zeros(1), []
-    third = TURN_SWING / 3
-    # (heading before, heading now): angles in units of a third of the swing
-    for before, now in ((0, 0), (0, 2), (2, 1), (1, 4), (4, 3), (3, 5), (5, 3), (3, 1.5),
-                        (1.5, 1), (1, 3), (3, 1), (1, 4.5)):
-        turn, swing = heading_turn(heading(before * third), heading(now * third), turn, swing)
-        seen.append((turn.item(), round(swing.item() / third, 3)))
-    assert seen == [(0, 0), (0, 2), (0, 1), (1, 0), (1, 1), (1, 0), (1, 2), (-1, 0),
-                    (-1, 0), (-1, 2), (-1, 0), (1, 0)]
-    # across +-pi the short way round counts: 3.1 to -3.1 turns anticlockwise
-    turn, swing = heading_turn(heading(3.1), heading(-3.1), torch.zeros(1), torch.zeros(1))
-    assert turn.item() == 0 and swing.item() == pytest.approx(2 * math.pi - 6.2, abs=1e-5)
-    turn, _ = heading_turn(heading(3.1), heading(-2.8), torch.zeros(1), torch.zeros(1))
-    assert turn.item() == 1.0
-
-
-@pytest.mark.parametrize("sync_free", [False, True])
-def test_turn_features_count_what_the_planners_turn_hold_counts(sync_free):
-    """Random driving with episodes ending (as the gear features' test): after every step
-    the feature (last) holds the turn the teacher's turn hold, following the same cars,
-    counts before the next action; a new episode starts with none."""
-    n = 64
-    env = ParkingEnv(n, seed=4, reset_in_step=sync_free)
-    env.occupancy = 0.9
-    tenv = (SyncFreeEnv if sync_free else TransformedEnv)(env, TurnFeatures())
-    hold = TurnHold(0.2, n, "cpu")
-    generator = torch.Generator().manual_seed(1)
-    td = tenv.reset()
-    assert torch.equal(td["observation_policy"][:, -1], torch.zeros(n))
-    ends, turned = 0, set()
-    for _ in range(60):
-        expected = hold.turn_in(env.state)
-        assert torch.equal(td["observation_policy"][:, -1], expected)
-        assert torch.equal(td["observation_policy"][:, :-1], td["observation"])
-        turned |= set(expected.tolist())
-        action = (torch.rand(n, 2, generator=generator) * 2 - 1) * torch.tensor([5.0, 0.785])
-        action[:8, 1] = 0.0  # straight keeps the turn
-        action[8:16, 0] = 0.5 * action[8:16, 0].sign()  # slow: small swings keep it
-        td["action"] = action
-        td, td = tenv.step_and_maybe_reset(td)
-        ends += int(env.state.steps.eq(0).sum())
-    assert ends > 0 and turned == {-1.0, 0.0, 1.0}
-
-
-def test_turn_features_without_history_and_before_a_reset():
-    obs = torch.zeros(3, 23)
-    out = TurnFeatures()(TensorDict({"observation": obs}, [3]))
-    assert torch.equal(out["observation_policy"], torch.cat([obs, torch.zeros(3, 1)], -1))
-    with pytest.raises(ValueError, match=">= 7 features"):
-        TurnFeatures()(TensorDict({"observation": torch.zeros(3, 5)}, [3]))
-    env = TransformedEnv(ParkingEnv(2, seed=0), TurnFeatures())
-    with pytest.raises(RuntimeError, match="reset"):
-        env.transform._step(TensorDict({}, [2]), env.base_env.reset())
-    check_env_specs(TransformedEnv(ParkingEnv(2, seed=0), TurnFeatures()))
 
 
 def scan_points(pose: np.ndarray, lidar: np.ndarray, cfg: ParkingConfig) -> np.ndarray:

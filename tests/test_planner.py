@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import types
 
 import pytest
 import torch
@@ -18,7 +17,6 @@ from torchpark.aids.brake import fence
 from torchpark.experts import ExpertConfig, PlannerConfig, PlannerExpert
 from torchpark.experts.planner import (
     GearHold,
-    TurnHold,
     arcs,
     build_planner,
     cell_index,
@@ -28,7 +26,7 @@ from torchpark.experts.planner import (
     plan_control,
     target_cells,
 )
-from torchpark.sim.vehicle import TURN_SWING, bicycle_step, vehicle_boxes
+from torchpark.sim.vehicle import bicycle_step, vehicle_boxes
 from torchpark.sim.world import touches_obstacle
 
 # A coarse grid: its tables build in seconds on the default lot.
@@ -176,54 +174,6 @@ def test_a_kept_gear_is_the_cars_wherever_a_look_ahead_in_it_is_open(planner, la
         assert (kept[other] * moving > 0).any()
 
 
-def test_a_turn_costs_its_cost_to_give_up_and_no_more(planner, layout):
-    """With the car's turn given, a first arc turning the other way costs ``turn_cost`` more:
-    the control turns against it only where every other choice costs that much more, and
-    otherwise keeps it (or drives straight) at a cost within ``turn_cost`` of the free
-    choice; no turn (0), or the free choice's own, is the free choice."""
-    pose = grid_poses(planner.grid, "cpu")[::97]
-    n = pose.shape[0]
-    slot = torch.arange(n) % layout.num_slots
-    speed = torch.full((n,), COARSE.speed)
-    cost = 0.3
-    turning = planner._replace(cfg=dataclasses.replace(COARSE, turn_cost=cost))
-    free_v, free_delta, free_cost = plan_control(planner, pose, speed, slot)
-    rotation = torch.sign(free_v) * torch.sign(free_delta)
-    none = plan_control(turning, pose, speed, slot, turn=torch.zeros(n))
-    assert all(torch.equal(a, b) for a, b in zip(none, (free_v, free_delta, free_cost),
-                                                 strict=True))
-    v, delta, held_cost = plan_control(turning, pose, speed, slot, turn=-rotation)
-    against = (rotation != 0) & (free_v != 0)
-    assert against.sum() > 50
-    now = torch.sign(v) * torch.sign(delta)
-    # still against the turn: the free choice's cost and the turn's; straight or with the
-    # turn: a choice that saves less than the turn's cost
-    still = against & (now == rotation)
-    assert torch.allclose(held_cost[still], free_cost[still] + cost)
-    slack = 1e-5 * free_cost[against].abs() + 1e-4  # float32's rounding of costs of 1e3 m
-    assert (held_cost[against] <= free_cost[against] + cost + slack).all()
-    assert (held_cost[against] >= free_cost[against] - slack).all()
-    assert still.any() and (against & (now == -rotation)).any()
-    # with the turn the free choice's own, the choice is free
-    same = plan_control(turning, pose, speed, slot, turn=rotation)
-    assert torch.equal(same[2][against], free_cost[against])
-
-
-def test_turn_hold_follows_the_heading_through_either_gear_and_a_new_episode():
-    hold = TurnHold(0.2, 2, "cpu")
-    state = types.SimpleNamespace(pose=torch.zeros(2, 3), steps=torch.zeros(2))
-    seen = []
-    # the second car mirrors the first; the last pose starts a new episode; headings in
-    # quarters of the swing
-    for psi, steps in ((0, 0), (2, 1), (5, 2), (3, 3), (6, 4), (1, 5), (1, 0)):
-        psi = psi * TURN_SWING / 4
-        state.pose = torch.tensor([[0.0, 0.0, psi], [5.0, 1.0, -psi]])
-        state.steps = torch.tensor([steps, steps])
-        seen.append(hold.turn_in(state).tolist())
-    assert seen == [[0, 0], [0, 0], [1, -1], [1, -1], [1, -1], [-1, 1], [0, 0]]
-    assert TurnHold(0.0, 2, "cpu").turn_in(state) is None
-
-
 def test_with_a_car_margin_no_arc_taken_brings_the_grown_box_onto_a_parked_car(planner):
     # cars near the lanes' edges at 90 %: the control reads only slots, so some of its arcs
     # end with the box grown by 0.3 m on a parked car it was clear of; with the margin none do
@@ -284,8 +234,7 @@ def test_gear_hold_counts_the_travel_since_the_last_change_of_gear():
                                           ("law_lateral", 0.4), ("law_heading", 4.0),
                                           ("law_heading", math.nan), ("law_reach", True),
                                           ("law_lateral", math.inf), ("gear_hold", -1.0),
-                                          ("gear_hold", math.inf), ("turn_cost", -0.1),
-                                          ("turn_cost", 0.375), ("turn_cost", math.nan)])
+                                          ("gear_hold", math.inf)])
 def test_bad_planner_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=f"PlannerConfig.{field}"):
         PlannerConfig(**{field: value})

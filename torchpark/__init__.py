@@ -23,7 +23,6 @@ from torchpark.transforms.features import (
     GearTravelFeatures,
     GoalFrameFeatures,
     ScanMemory,
-    TurnFeatures,
 )
 
 register()  # gymnasium.make("torchpark/Parking-v0")
@@ -48,6 +47,5 @@ __all__ = [
     "PowerActionMap",
     "RewardConfig",
     "ScanMemory",
-    "TurnFeatures",
     "VehicleConfig",
 ]

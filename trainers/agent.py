@@ -35,17 +35,10 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import ProbabilisticActor
 
-from torchpark import (
-    ENV_ID,
-    AidsConfig,
-    GearTravelFeatures,
-    ParkingConfig,
-    ScanMemory,
-    TurnFeatures,
-)
+from torchpark import ENV_ID, AidsConfig, GearTravelFeatures, ParkingConfig, ScanMemory
 from torchpark.aids.step import BRAKED
 from torchpark.sim.observation import SPEED
-from torchpark.sim.vehicle import gear_travel, heading_turn
+from torchpark.sim.vehicle import gear_travel
 from trainers.checkpoint import load_trained, load_weights
 from trainers.config import TrainConfig, check_device, env_configs
 from trainers.utils import build_models, make_eval_env
@@ -103,14 +96,12 @@ class TrainedAgent:
         ``deterministic=False`` samples from the policy's distribution.
 
         ``state`` is None for an agent whose input is the observation of the moment. One with
-        the gear features (``AgentConfig.gear_features``), a scan memory
-        (``AgentConfig.scan_memory``) or the turn features (``AgentConfig.turn_features``)
-        reads the episode so far, as a recurrent policy: pass back the state the last call
-        returned ((S,) or (B, S): the gear and its travel, m, then the remembered scans,
-        flattened, then the heading's cos and sin, the turn and its swing, rad), None at an
-        episode's first observation, and, as SB3 does, ``episode_start`` (B,) bool for the
-        rows whose observation is a new episode's first (every row when ``state`` is
-        None)."""
+        the gear features (``AgentConfig.gear_features``) or a scan memory
+        (``AgentConfig.scan_memory``) reads the episode so far, as a recurrent policy: pass
+        back the state the last call returned ((S,) or (B, S): the gear and its travel, m,
+        then the remembered scans, flattened), None at an episode's first observation, and,
+        as SB3 does, ``episode_start`` (B,) bool for the rows whose observation is a new
+        episode's first (every row when ``state`` is None)."""
         obs = torch.as_tensor(np.asarray(observation, np.float32))
         dim = self._inputs.base_env.obs_dim
         if obs.dim() not in (1, 2) or obs.shape[-1] != dim:
@@ -132,8 +123,8 @@ class TrainedAgent:
                                  f"({len(td)} x {width}), got shape {tuple(value.shape)}")
             td[key] = value.reshape(len(td), width).to(batch.device)
         transform = self._inputs.transform
-        gear, memory, turn = self._recurrent
-        if gear is not None or memory is not None or turn is not None:
+        gear, memory = self._recurrent
+        if gear is not None or memory is not None:
             going_on = self._set_state(batch, state, episode_start)
             td["_reset"] = ~going_on[:, None]  # the rows that go on keep the state set here
         mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
@@ -142,7 +133,7 @@ class TrainedAgent:
             td = transform.inv(self.actor(transform._reset(td, td)))
         high = self._inputs.base_env.action_spec.space.high.reshape(-1, 2)[0]
         action = (td["action"] / high).clamp(-1.0, 1.0).cpu().numpy()
-        if gear is None and memory is None and turn is None:
+        if gear is None and memory is None:
             return (action[0] if single else action), None
         parts = []
         if gear is not None:
@@ -150,8 +141,6 @@ class TrainedAgent:
         if memory is not None:  # the scans the next observation's features read
             now = memory.scan(batch)[:, None]
             parts.append(torch.cat((now, memory.history[:, :-1]), 1).flatten(1))
-        if turn is not None:
-            parts.append(torch.cat((turn.heading, turn.turn[:, None], turn.swing[:, None]), -1))
         new_state = torch.cat(parts, -1).cpu().numpy()
         return (action[0], new_state[0]) if single else (action, new_state)
 
@@ -159,13 +148,11 @@ class TrainedAgent:
                    episode_start: np.ndarray | None) -> torch.Tensor:
         """Sets the recurrent input transforms' state for this observation (B, D): a new
         episode's rows start, the others go on from ``state`` (the gear by the observed
-        speed, the scan memory as it was, the turn by the observed heading). Returns the rows
-        that go on, (B,) bool."""
-        gear, memory, turn = self._recurrent
+        speed, the scan memory as it was). Returns the rows that go on, (B,) bool."""
+        gear, memory = self._recurrent
         b = batch.shape[0]
         width = (2 if gear is not None else 0) + (
-            memory.scans * (4 + memory.n_rays) if memory is not None else 0) + (
-            4 if turn is not None else 0)
+            memory.scans * (4 + memory.n_rays) if memory is not None else 0)
         going_on = torch.zeros(b, dtype=torch.bool, device=batch.device)
         before = torch.zeros(b, width, device=batch.device)
         if state is not None:
@@ -188,24 +175,16 @@ class TrainedAgent:
             gear.start_rows(~going_on)
             before = before[:, 2:]
         if memory is not None:  # the rows that start are refilled by the transform's reset
-            cut = memory.scans * (4 + memory.n_rays)
-            memory.history = before[:, :cut].reshape(b, memory.scans, 4 + memory.n_rays)
-            before = before[:, cut:]
-        if turn is not None:
-            now = TurnFeatures.heading_of(batch)
-            turn.turn, turn.swing = heading_turn(before[:, :2], now, before[:, 2], before[:, 3])
-            turn.heading = now
-            turn.start_rows(~going_on, now)
+            memory.history = before.reshape(b, memory.scans, 4 + memory.n_rays)
         return going_on
 
     @cached_property
-    def _recurrent(self) -> tuple[GearTravelFeatures | None, ScanMemory | None,
-                                  TurnFeatures | None]:
+    def _recurrent(self) -> tuple[GearTravelFeatures | None, ScanMemory | None]:
         """The input's transforms that read the episode so far, where the agent has them:
-        the gear features, the scan memory, the turn features."""
+        the gear features, the scan memory."""
         found = [next((t for t in self._inputs.transform if isinstance(t, kind)), None)
-                 for kind in (GearTravelFeatures, ScanMemory, TurnFeatures)]
-        return found[0], found[1], found[2]
+                 for kind in (GearTravelFeatures, ScanMemory)]
+        return found[0], found[1]
 
     def _info_keys(self) -> tuple[str, ...]:
         """The env outputs besides the observation that the policy's input reads."""

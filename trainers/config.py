@@ -75,10 +75,6 @@ class AgentConfig:
     # counted from the observations over the episode: the corners the 16 rays of one scan
     # pass between. 0: none.
     scan_memory: int = 0
-    # Append the way the car last turned its heading (+1 anticlockwise, -1 clockwise, 0 none
-    # yet), counted from the observed headings over the episode (torchpark.TurnFeatures):
-    # what a teacher's turn hold decides by. Last in the input.
-    turn_features: bool = False
     # Append the env's braked flag (the brake stopped the last step) to the policy's input:
     # a deterministic policy that pushes into a parked car sees that it was stopped.
     observe_brake: bool = False

@@ -114,7 +114,7 @@ from torchpark.aids.step import AidedState, AidState, aided_control
 from torchpark.config import ParkingConfig, check_types, is_integer, positive, require
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.experts import ExpertConfig, PlannerConfig
-from torchpark.experts.planner import GearHold, TurnHold, lot_planner, plan_control
+from torchpark.experts.planner import GearHold, lot_planner, plan_control
 from torchpark.files import locked, save_torch, write_csv
 from torchpark.runner import FREEZE_DISTANCE, FREEZE_STEPS, run_episodes
 from torchpark.sim.geometry import wrap_angle
@@ -141,8 +141,6 @@ STALL_TRAVEL = 5.0
 # ... from a state more than this far from its goal, m: nearer, the docking law's turns to
 # line the car up to the millimetre cover metres of path without going far.
 STALL_AWAY = 2.0
-# The teacher's planner's control arc, m: a turn cost as dear lets the car circle.
-CONTROL_STEP = PlannerConfig.control_step
 # The teacher's longest look-ahead before its law takes over (Teacher's handover), steps of dt.
 HANDOVER_LIMIT = 1000
 
@@ -174,12 +172,7 @@ class DistillConfig:
     planner keeps a new gear for that many metres (``PlannerConfig.gear_hold``, following
     the car the student drives); ``gear_features``: the student also reads the gear and its
     travel in it (torchpark.GearTravelFeatures), so a held gear's labels are a function of
-    its input; ``turn_cost``: the teacher's planner keeps the turn the car began, a first
-    arc against it costing that many metres more (``PlannerConfig.turn_cost``, following the
-    car the student drives); ``turn_features``: the student also reads that turn
-    (torchpark.TurnFeatures, last in its input; the final-approach states, which have no
-    history, each read one drawn at random, +1 or -1: the law's labels there do not depend
-    on it); ``scan_memory``: 0, or the student also reads the nearest ray end in each
+    its input; ``scan_memory``: 0, or the student also reads the nearest ray end in each
     ray's sector over this scan and that many before it (torchpark.ScanMemory);
     ``steer_bins``: 0, or the bins of the student's steering
     (``ModelConfig.steer_bins``, :class:`trainers.heads.BinnedGearHead`);
@@ -199,9 +192,7 @@ class DistillConfig:
     ``hazard_horizon`` steps of dt; :meth:`trainers.heads.BinnedGearHead.hazard_error`);
     ``init``: None, or a student's checkpoint of the same input and network (a run of this
     distiller) whose weights and normaliser the student starts from, and which drives the
-    first iteration in the teacher's place; one without the turn features starts a student
-    with them, the new input's weights 0 and its normalisation the identity (the student
-    drives as the checkpoint's did until the fit teaches it the turn);
+    first iteration in the teacher's place;
     ``lr_decay``: each fit's learning
     rate falls from ``lr`` to 0 along a cosine; ``epochs`` / ``dagger_epochs``: passes over
     the data after the first / each later iteration; ``width`` / ``depth``: the student's
@@ -233,8 +224,6 @@ class DistillConfig:
     reverse_margin: float = 0.0
     gear_hold: float = 0.0
     gear_features: bool = False
-    turn_cost: float = 0.0
-    turn_features: bool = False
     scan_memory: int = 0
     steer_bins: int = 0
     target_lateral: float | None = None
@@ -278,9 +267,6 @@ class DistillConfig:
             value = getattr(self, name)
             require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
                     value)
-        require(0.0 <= self.turn_cost < CONTROL_STEP, "DistillConfig.turn_cost",
-                f"in [0, {CONTROL_STEP:g}) m (PlannerConfig.control_step: a cost as dear as "
-                f"an arc's own lets the car circle)", self.turn_cost)
         require(0.0 <= self.hazard_weight < float("inf"), "DistillConfig.hazard_weight",
                 "finite, >= 0", self.hazard_weight)
         # the funnel's lower bounds (the target's) are PlannerConfig's to check
@@ -373,8 +359,6 @@ class Teacher:
                                    str(self.base.device))
         self.angles = steer_angles(config, self.aids.brake or BrakeConfig(), self.base.device)
         self.hold = GearHold(self.expert.planner.gear_hold, self.base.num_envs, self.base.device)
-        self.turn = TurnHold(self.expert.planner.turn_cost, self.base.num_envs,
-                             self.base.device)
         self.state = AidState.zeros(self.base.num_envs, self.base.device)
         # (N,) bool: the brake stopped or steered the last label
         self.intervened = torch.zeros(self.base.num_envs, dtype=torch.bool,
@@ -441,11 +425,10 @@ class Teacher:
         braked = self.state.braked | self.ends_short(sim.pose, reverses, sim.present)
         self.state = self.state._replace(braked=braked, docking_engaged=funnel,
                                          docking_reverses=reverses)
-        # the gear the car (the student) moves in and the way it turns, held
+        # the gear the car (the student) moves in, held
         action = torch.stack(plan_control(self.planner, sim.pose, sim.speed, sim.goal_slot,
                                           self.hold.keep_in(sim, self.base),
-                                          (self.base.world, sim.present),
-                                          self.turn.turn_in(sim))[:2], -1)
+                                          (self.base.world, sim.present))[:2], -1)
         control = aided_control(AidedState(sim, self.state), action,
                                 self.base.world, self.angles, self.base.config, self.aids)
         self.state, self.intervened = control.aids, control.intervened
@@ -473,8 +456,7 @@ def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
                 probability=cfg.near_goal) if cfg.near_goal > 0 else None),
             action_exponents=[cfg.speed_exponent, cfg.steer_exponent], gear_head=True,
             goal_features=True, clearance_features=cfg.clearance_features,
-            gear_features=cfg.gear_features, scan_memory=cfg.scan_memory,
-            turn_features=cfg.turn_features),
+            gear_features=cfg.gear_features, scan_memory=cfg.scan_memory),
         model=dataclasses.replace(tcfg.model, hidden=hidden, steer_bins=cfg.steer_bins),
         logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
     return student
@@ -499,16 +481,15 @@ def approach_poses(goal: torch.Tensor, reach: float, law: DockingConfig,
 
 
 def approach_states(env: TransformedEnv, features: Transform, teacher: Teacher,
-                    count: int, reach: float, generator: torch.Generator,
-                    turn: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+                    count: int, reach: float, generator: torch.Generator
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
     """About ``count`` states of the docking law's final approach (:func:`approach_poses`)
     in fresh lots of ``env`` at its occupancy, those where the car touches nothing, each
     moving at the teacher's speed there times a uniform draw in [0, 2]: the observed speed
     must not give the label away (a student fitted to labels near its observed speed copies
     it, and stays at rest where an episode starts). Returns the student's raw inputs (B, D)
-    (``features`` of the observation; with ``turn``, the last of them, the turn features,
-    drawn +1 or -1: these states have no history) and the teacher's controls (B, 2): the
-    law's, engaged and driving forwards, or the brake's where it would collide."""
+    (``features`` of the observation) and the teacher's controls (B, 2): the law's, engaged
+    and driving forwards, or the brake's where it would collide."""
     base, law = env.base_env, teacher.aids.docking
     n = base.num_envs
     inputs, labels = [], []
@@ -524,11 +505,7 @@ def approach_states(env: TransformedEnv, features: Transform, teacher: Teacher,
         control = teacher.label()
         scale = 2.0 * torch.rand(n, generator=generator, device=base.device)
         moving = base.set_state(sim._replace(pose=pose, speed=control[:, 0] * scale))
-        x = features(moving)[STUDENT_INPUT]
-        if turn:
-            draw = torch.rand(n, generator=generator, device=base.device) < 0.5
-            x[:, -1] = torch.where(draw, -1.0, 1.0)
-        inputs.append(x[free])
+        inputs.append(features(moving)[STUDENT_INPUT][free])
         labels.append(control[free])
     return torch.cat(inputs), torch.cat(labels)
 
@@ -778,62 +755,34 @@ def data_path(out: Path, iteration: int) -> Path:
 def teacher_planner(cfg: DistillConfig, planner: PlannerConfig | None = None
                     ) -> PlannerConfig:
     """The teacher's planner: ``planner`` (default :class:`PlannerConfig`) with the run's gear
-    hold, turn cost and car margin and, where set, its target's lateral and heading bounds,
-    its headings and the law's funnel."""
+    hold and car margin and, where set, its target's lateral and heading bounds, its headings
+    and the law's funnel."""
     given = {name: value for name, value in (
         ("lateral", cfg.target_lateral), ("heading", cfg.target_heading),
         ("headings", cfg.planner_headings), ("law_lateral", cfg.funnel_lateral),
         ("law_heading", cfg.funnel_heading)) if value is not None}
     return dataclasses.replace(planner or PlannerConfig(), gear_hold=cfg.gear_hold,
-                               car_margin=cfg.car_margin, turn_cost=cfg.turn_cost, **given)
+                               car_margin=cfg.car_margin, **given)
 
 
 def start_from(path: str, scfg: TrainConfig, actor, norm: Transform) -> None:
     """Load the student's weights and normaliser (frozen) from the checkpoint at ``path``
-    (``DistillConfig.init``), refused unless it has the student's input and network; a
-    checkpoint without the turn features (the input's last column) starts a student with
-    them (:func:`with_turn_input`)."""
+    (``DistillConfig.init``), refused unless it has the student's input and network."""
     cfg, checkpoint = load_trained(path)
-    grow = scfg.agent.turn_features and not cfg.agent.turn_features
     for name in ("agent", "model"):
         ours, theirs = (dataclasses.asdict(getattr(c, name)) for c in (scfg, cfg))
-        if name == "agent" and grow:
-            theirs["turn_features"] = True
         differs = sorted(k for k in ours if ours[k] != theirs[k])
         if differs:
             key = differs[0]
             raise ValueError(f"--init: {path} has {name}.{key}={theirs[key]!r}, this command's "
                              f"student {name}.{key}={ours[key]!r}")
     try:
-        weights, statistics = checkpoint["actor"], checkpoint["obs_norm"]
-        if grow:
-            weights, statistics = with_turn_input(weights, statistics, actor.state_dict())
-        actor.load_state_dict(weights)
-        norm.load_state_dict(statistics)
+        actor.load_state_dict(checkpoint["actor"])
+        norm.load_state_dict(checkpoint["obs_norm"])
     except (KeyError, RuntimeError) as err:
         raise ValueError(f"--init: {path} has no student's weights of this shape "
                          f"({type(err).__name__})") from None
     norm.freeze()
-
-
-def with_turn_input(weights: dict, statistics: dict, ours: dict) -> tuple[dict, dict]:
-    """A student's ``weights`` (its actor's state dict) and normaliser ``statistics`` grown by
-    the one input column of the turn features, last: the first layer's new column 0 (every
-    2-D weight one column narrower than in ``ours``, the new actor's state dict), the new
-    input's running mean 0 and variance 1. The grown student acts as the one it grows from."""
-    grown = {}
-    for key, value in weights.items():
-        if value.dim() == 2 and key in ours and ours[key].shape[0] == value.shape[0] \
-                and ours[key].shape[1] == value.shape[1] + 1:
-            value = torch.cat((value, value.new_zeros(value.shape[0], 1)), 1)
-        grown[key] = value
-    moments = {}
-    for key, value in statistics["_extra_state"].items():
-        for name, fill in (("loc", 0.0), ("var", 1.0)):
-            if key.startswith(f"{name}.") and value.dim() == 1:
-                value = torch.cat((value, value.new_full((1,), fill)))
-        moments[key] = value
-    return grown, {**statistics, "_extra_state": moments}
 
 
 def distill(teacher_path: str, out: Path, cfg: DistillConfig,
@@ -894,7 +843,6 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     parts = [name for name, on in (("gear head", True),
                                    ("clearance features", cfg.clearance_features),
                                    ("gear features", cfg.gear_features),
-                                   ("turn features", cfg.turn_features),
                                    (f"a memory of {cfg.scan_memory} scans",
                                     cfg.scan_memory > 0),
                                    ("binned steering", cfg.steer_bins > 0),
@@ -909,8 +857,6 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
         source += f" (its law's reversing passes ending {cfg.reverse_margin:g} m short of contact)"
     if cfg.car_margin:
         source += f" (its planner keeping {cfg.car_margin:g} m off the parked cars)"
-    if cfg.turn_cost:
-        source += f" (its planner keeping the car's turn, {cfg.turn_cost:g} m to give it up)"
     if cfg.handover:
         source += (f" (its law taking over beyond the target only where {cfg.handover} steps of "
                    f"it ahead touch nothing)")
@@ -946,7 +892,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
         for level in PAPER_LEVELS if cfg.approach and iteration == 0 else ():
             base.occupancy = level
             x, y = approach_states(env, features, teacher, cfg.approach, cfg.approach_reach,
-                                   generator, cfg.turn_features)
+                                   generator)
             batches.append((x, power_map_inverse(y, high, exponents),
                             torch.full((x.shape[0],), cfg.approach_weight, device=x.device),
                             torch.zeros(x.shape[0], 2, width, dtype=torch.bool,

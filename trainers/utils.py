@@ -36,7 +36,6 @@ from torchpark import (
     ParkingEnv,
     PowerActionMap,
     ScanMemory,
-    TurnFeatures,
 )
 from torchpark.aids.step import BRAKED
 from torchpark.transforms.sync_free import SyncFreeEnv, SyncFreeRewardScaling, SyncFreeVecNorm
@@ -187,7 +186,7 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
     """The transforms between the env and the networks: the optional action maps (the power
     map onto the env's own action bounds, the gear head above it), then from the raw
     observation (with the optional goal, clearance and gear features, position and brake
-    flag, and the turn features last) to the networks' input ``NORMALISED`` (last).
+    flag) to the networks' input ``NORMALISED`` (last).
 
     Normalised into its own key: the networks read it, while the raw observation stays in the
     data for evaluation and analysis (final position and heading errors). reduce_batch_dims:
@@ -229,9 +228,6 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
                                           out_keys=["braked_input"]),
                        CatTensors([*source, "braked_input"], "observation_policy",
                                   del_keys=False, sort=False)]
-        source = ["observation_policy"]
-    if agent.turn_features:
-        transforms.append(TurnFeatures(source[0], "observation_policy"))
         source = ["observation_policy"]
     return [*transforms, SyncFreeVecNorm(in_keys=source, out_keys=[NORMALISED],
                                    decay=NORM_DECAY ** replicas, reduce_batch_dims=True)]

@@ -31,11 +31,7 @@ class PlannerConfig:
     stops). After the car changes gear it keeps the new
     one for ``gear_hold`` m of travel wherever a look-ahead in it is open (0: the greedy
     choice at every step, which can cycle forwards and back at a lane's edge; see
-    :class:`~torchpark.experts.planner.GearHold`). With ``turn_cost`` m > 0 a first arc
-    that turns the heading against the way the car last turned costs that much more (the
-    car keeps the turn it began where two ways round cost alike; below ``control_step``,
-    so that every step still lowers the cost-to-go; see
-    :class:`~torchpark.experts.planner.TurnHold`). The docking law takes over from it within
+    :class:`~torchpark.experts.planner.GearHold`). The docking law takes over from it within
     ``law_reach`` m behind the goal, ``law_lateral`` m of the slot axis and ``law_heading``
     rad of the goal's heading (:meth:`law_funnel`; None: the target's bound); a funnel
     wider than the target hands over to the law where the planner's arcs would circle a
@@ -63,7 +59,6 @@ class PlannerConfig:
     law_heading: float | None = None  # rad
     gear_hold: float = 0.0  # m
     car_margin: float = 0.0  # m
-    turn_cost: float = 0.0  # m
 
     def __post_init__(self) -> None:
         check_types(self)
@@ -83,9 +78,6 @@ class PlannerConfig:
             value = getattr(self, name)
             require(math.isfinite(value) and value >= 0, f"PlannerConfig.{name}",
                     "finite, >= 0", value)
-        require(0.0 <= self.turn_cost < self.control_step, "PlannerConfig.turn_cost",
-                f"in [0, control_step = {self.control_step:g}) m (a cost as dear as an arc's "
-                f"own lets the car circle)", self.turn_cost)
         require(self.slot_cost >= 1.0, "PlannerConfig.slot_cost", ">= 1 (inf: never on a slot)",
                 self.slot_cost)
         require(self.reach_min < self.reach, "PlannerConfig.reach_min",

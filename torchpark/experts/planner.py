@@ -40,7 +40,7 @@ from torchpark.experts.config import ExpertConfig, PlannerConfig
 from torchpark.sim.geometry import OrientedBoxes, oriented_boxes, separation, wrap_angle
 from torchpark.sim.layout import LotLayout, build_layout
 from torchpark.sim.step import ParkingState
-from torchpark.sim.vehicle import gear_travel, heading_turn, vehicle_obb
+from torchpark.sim.vehicle import gear_travel, vehicle_obb
 from torchpark.sim.world import World, touches_obstacle
 
 
@@ -269,8 +269,8 @@ def near_cars(planner: Planner, pose: Tensor, cars: tuple[World, Tensor]) -> Ten
 
 
 def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tensor,
-                 keep_gear: Tensor | None = None, cars: tuple[World, Tensor] | None = None,
-                 turn: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+                 keep_gear: Tensor | None = None, cars: tuple[World, Tensor] | None = None
+                 ) -> tuple[Tensor, Tensor, Tensor]:
     """The planner's control at poses (N, 3) moving at ``speed`` (N,) m/s towards slots
     ``goal_slot`` (N,): (v m/s, delta rad, cost-to-go m), each (N,). Of the sequences of
     two arcs of ``cfg.control_step`` m from the exact pose, the one whose end has the least
@@ -284,8 +284,7 @@ def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tenso
     moves in, where one of them is open. With ``cars`` (the env's world and (N, M) present
     obstacles) and ``cfg.car_margin`` > 0, a sequence either of whose arcs ends with the car
     box grown by the margin on an obstacle it was clear of before (:func:`near_cars`) is
-    blocked, as a wall's is. With ``turn`` (N,) (:class:`TurnHold`: +1, -1, or 0 for none), a
-    first arc that turns the heading the other way costs ``cfg.turn_cost`` m more."""
+    blocked, as a wall's is."""
     prim, cfg = planner.control, planner.cfg
     gear = torch.sign(prim.travel)
     first = arcs(pose, prim.travel, prim.curvature)  # (N, K, 3)
@@ -304,10 +303,6 @@ def plan_control(planner: Planner, pose: Tensor, speed: Tensor, goal_slot: Tenso
         planner, second.reshape(n, k * k, 3), goal_slot))
     own_first = prim.cost * torch.where(off_first, 1.0, cfg.slot_cost)  # (N, K)
     own_second = prim.cost * torch.where(off_second, 1.0, cfg.slot_cost)  # (N, K, K)
-    if turn is not None:  # the first arc turning against the car's turn
-        rotation = torch.sign(prim.travel * prim.curvature)  # (K,)
-        own_first = own_first + torch.where(
-            (turn[:, None] != 0) & (rotation == -turn[:, None]), cfg.turn_cost, 0.0)
     total = ahead + again + own_second + (own_first + switch)[:, :, None]
     open_ = walled_first[:, :, None] & walled_second
     if cars is not None and cfg.car_margin > 0:
@@ -363,39 +358,6 @@ class GearHold:
                          env.config.vehicle.dt * env.action_repeat)
 
 
-class TurnHold:
-    """The planner's commitment to a turn (``PlannerConfig.turn_cost``): per env, the way the
-    car has been turning its heading and how far it has swung back
-    (:func:`~torchpark.sim.vehicle.heading_turn`), and its heading before the step. Where two
-    ways round a lot's end cost alike, the greedy control picks by centimetres the student
-    cannot see, and a car between them turns one way and then the other
-    (research/experiments.md); a turn costing ``turn_cost`` m to give up keeps the one
-    begun.
-
-    It follows the car, not the commands, as :class:`GearHold` does."""
-
-    def __init__(self, cost: float, num_envs: int, device: torch.device | str) -> None:
-        self.cost = cost
-        self.turn = torch.zeros(num_envs, device=device)
-        self.swing = torch.zeros(num_envs, device=device)
-        self.heading = torch.zeros(num_envs, 2, device=device)
-
-    def turn_in(self, state: ParkingState) -> Tensor | None:
-        """The way each car in ``state`` has been turning (N,) (+1, -1; 0 in a fresh episode,
-        ``state.steps`` 0, until its heading has turned), counting the step since the last
-        call; None when there is no hold (``cost`` 0)."""
-        if self.cost == 0:
-            return None
-        psi = state.pose[:, 2]
-        now = torch.stack((torch.cos(psi), torch.sin(psi)), -1)
-        fresh = state.steps == 0
-        turn, swing = heading_turn(self.heading, now, self.turn, self.swing)
-        self.turn = torch.where(fresh, 0.0, turn)
-        self.swing = torch.where(fresh, 0.0, swing)
-        self.heading = now
-        return self.turn
-
-
 @functools.lru_cache(maxsize=4)
 def lot_planner(lot: LotConfig, vehicle: VehicleConfig, cfg: PlannerConfig, device: str
                 ) -> Planner:
@@ -424,11 +386,10 @@ class PlannerExpert:
         self.planner = lot_planner(base.config.lot, base.config.vehicle, self.config.planner,
                                    str(base.device))
         self.hold = GearHold(self.config.planner.gear_hold, base.num_envs, base.device)
-        self.turn = TurnHold(self.config.planner.turn_cost, base.num_envs, base.device)
 
     def __call__(self, td: TensorDictBase) -> TensorDictBase:
         state = self.env.state
         v, delta, _ = plan_control(self.planner, state.pose, state.speed, state.goal_slot,
                                    self.hold.keep_in(state, self.env),
-                                   (self.env.world, state.present), self.turn.turn_in(state))
+                                   (self.env.world, state.present))
         return td.set("action", torch.stack((v, delta), -1))

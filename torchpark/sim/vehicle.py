@@ -90,31 +90,3 @@ def gear_travel(speed: Tensor, gear: Tensor, travel: Tensor, step_time: float
     moved = speed.abs() * step_time
     changed = (now != 0) & (now != gear)
     return torch.where(now != 0, now, gear), torch.where(changed, moved, travel + moved)
-
-
-
-# How far the heading must swing back against the way the car has been turning before that
-# way changes, rad (about 17 degrees): a car rocking in place, its heading swinging 6-17
-# degrees to and fro (research/experiments.md), keeps its turn; a route that turns the
-# other way gives it up.
-TURN_SWING = 0.3
-
-
-def heading_turn(before: Tensor, now: Tensor, turn: Tensor, swing: Tensor
-                 ) -> tuple[Tensor, Tensor]:
-    """The way the car has been turning its heading, after a step from heading ``before``
-    [..., 2] (cos, sin) to ``now`` [..., 2], from ``turn`` [...] and ``swing`` [...] rad
-    before it: +1 anticlockwise, -1 clockwise, in either gear (a multi-point turn, forwards
-    on one lock and back on the other, turns one way throughout). With no turn yet (0),
-    ``swing`` is the heading's rotation so far and the turn is its sign once it passes
-    ``TURN_SWING``; with one, ``swing`` is how far the heading has come back against it from
-    its furthest point, and the turn changes (its swing to 0) where that passes
-    ``TURN_SWING``. What the planner's turn hold follows
-    (``torchpark.experts.planner.TurnHold``) and the policy's turn feature reads
-    (``torchpark.TurnFeatures``)."""
-    rotation = torch.atan2(before[..., 0] * now[..., 1] - before[..., 1] * now[..., 0],
-                           before[..., 0] * now[..., 0] + before[..., 1] * now[..., 1])
-    swing = torch.where(turn == 0, swing + rotation, (swing - turn * rotation).clamp_min(0.0))
-    changes = swing.abs() > TURN_SWING
-    turn = torch.where(changes, torch.where(turn == 0, torch.sign(swing), -turn), turn)
-    return turn, torch.where(changes, 0.0, swing)

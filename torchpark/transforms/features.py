@@ -1,6 +1,6 @@
 """Policy features computed from the paper's observation: the goal in the vehicle's frame,
 the clearance left along each LIDAR ray, and the gear the car moves in with its travel in it
-(from the observed speed over the episode), and the way it last turned its heading.
+(from the observed speed over the episode).
 
 The paper's observation gives the goal offset in the world frame; a policy then has to learn a
 rotation by the heading before it can steer. These features hand it the rotated offset, and a
@@ -25,7 +25,7 @@ from torchrl.envs.transforms import Transform
 from torchpark.config import ParkingConfig, is_number, require
 from torchpark.sim.lidar import ray_angles
 from torchpark.sim.observation import NAV_DIM, SPEED
-from torchpark.sim.vehicle import gear_travel, heading_turn
+from torchpark.sim.vehicle import gear_travel
 
 GOAL_FEATURES = 7  # ex, ey, cos and sin of the heading error, three asinh scales
 
@@ -222,85 +222,6 @@ class GearTravelFeatures(Transform):
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         return appended_spec(observation_spec, self.in_keys[0], self.out_keys[0], GEAR_FEATURES)
-
-
-class TurnFeatures(Transform):
-    """Writes ``out_key`` = cat(``in_key``, turn): the way the car has been turning its heading
-    (:func:`heading_turn`: +1 anticlockwise, -1 clockwise, 0 before its heading has turned
-    ``TURN_SWING`` in the episode; kept until it swings back as far),
-    counted from the headings the observations report (columns cos psi, sin psi of the
-    paper's observation, which ``in_key`` starts with).
-
-    Where two ways round a lot's end cost the planner alike, its turn hold keeps the one the
-    car began (``PlannerConfig.turn_cost``): a teacher with the hold labels the same
-    observation with either lock, depending on which way the car was turning. With this
-    feature the student sees what the label depends on.
-
-    Stateful per env (the last heading (N, 2), the turn and its swing (N,)): ``_reset``
-    starts the rows it resets (all, or those of the ``"_reset"`` mask), each step turns by
-    the heading's change. Called on a batch of states outside an env (``transform(td)``), it has no
-    history: every row's turn is 0.
-
-    Args:
-        in_key: the policy input that starts with the paper's observation.
-        out_key: where the [..., in_dim + 1] policy input goes.
-    """
-
-    def __init__(self, in_key: str = "observation", out_key: str = "observation_policy"
-                 ) -> None:
-        super().__init__(in_keys=[in_key], out_keys=[out_key])
-        self.heading: Tensor | None = None
-        self.turn: Tensor | None = None
-        self.swing: Tensor | None = None
-
-    @staticmethod
-    def heading_of(source: Tensor) -> Tensor:
-        """[..., D] input starting with the paper's observation -> [..., 2] (cos, sin) of the
-        heading."""
-        if source.shape[-1] < NAV_DIM:
-            raise ValueError(f"the turn features' input must have >= {NAV_DIM} features, got "
-                             f"shape {tuple(source.shape)}")
-        return source[..., 2:4]
-
-    def _write(self, tensordict, turn: Tensor):
-        source = tensordict.get(self.in_keys[0])
-        tensordict.set(self.out_keys[0],
-                       torch.cat([source, turn[..., None].to(source.dtype)], dim=-1))
-        return tensordict
-
-    def _apply_transform(self, source: Tensor) -> Tensor:
-        """Without history (a batch of states): no turn."""
-        self.heading_of(source)
-        return torch.cat([source, torch.zeros_like(source[..., :1])], dim=-1)
-
-    def _reset(self, tensordict, tensordict_reset):
-        now = self.heading_of(tensordict_reset.get(self.in_keys[0]))
-        fresh = torch.ones(now.shape[:-1], dtype=torch.bool, device=now.device)
-        if self.turn is not None and self.turn.shape == fresh.shape and tensordict is not None \
-                and "_reset" in tensordict.keys():
-            fresh = tensordict.get("_reset").reshape(fresh.shape).to(now.device)
-        else:
-            self.heading, self.turn = now.clone(), torch.zeros_like(now[..., 0])
-            self.swing = torch.zeros_like(self.turn)
-        self.start_rows(fresh, now)
-        return self._write(tensordict_reset, self.turn)
-
-    def start_rows(self, rows: Tensor, heading: Tensor) -> None:
-        """The rows ``rows`` (N,) bool start an episode at ``heading`` (N, 2): no turn."""
-        self.turn = torch.where(rows, 0.0, self.turn)
-        self.swing = torch.where(rows, 0.0, self.swing)
-        self.heading = torch.where(rows[..., None], heading, self.heading)
-
-    def _step(self, tensordict, next_tensordict):
-        if self.turn is None:
-            raise RuntimeError("TurnFeatures: step before reset (reset the env first)")
-        now = self.heading_of(next_tensordict.get(self.in_keys[0]))
-        self.turn, self.swing = heading_turn(self.heading, now, self.turn, self.swing)
-        self.heading = now
-        return self._write(next_tensordict, self.turn)
-
-    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        return appended_spec(observation_spec, self.in_keys[0], self.out_keys[0], 1)
 
 
 def ray_end_gaps(scans: Tensor, now: Tensor, ray_cos: Tensor, ray_sin: Tensor,
