@@ -28,32 +28,28 @@ import torch
 from tensordict import TensorDict
 
 import trainers.distill as distill
-from research.teacher_probe import STUDENT, TEACHER, cached
+from research.teacher_probe import STUDENT, cached, make_teacher, teacher_planner
 from torchpark.experts import planner as plan
-from torchpark.experts.config import PlannerConfig
 from torchpark.runner import run_episodes
 from torchpark.transforms.actions import gear_select, power_map_inverse
-from trainers.agent import load_agent
-from trainers.evaluate import checkpoint_agent
+from trainers.agent import TrainedAgent, load_agent
 from trainers.utils import NORMALISED
 
-# The committed student's teacher (results/policy_alone/command.txt).
-PLANNER = PlannerConfig(headings=96, gear_hold=0.75, lateral=0.25, heading=0.12,
-                        car_margin=0.2, law_lateral=0.6, law_heading=0.55)
+# The committed student's teacher (results/policy_alone/README.md's commands).
+PLANNER = teacher_planner(96, (0.6, 0.55), 0.2)
+HANDOVER = 50
 WINDOW = 100  # the evaluator's freezing window, steps
 
 
-def labelled_episodes(level: float, episodes: int, seed: int) -> dict:
+def labelled_episodes(trained: TrainedAgent, level: float, episodes: int, seed: int) -> dict:
     """The student's episodes at ``level`` with the teacher's label at each state: per step
     (T, N) the student's input, its five actions u, the label in its units (speed, steer),
     the sign of the car's speed; per episode its length and whether it froze."""
-    agent = checkpoint_agent(STUDENT)
-    exponents = torch.tensor(load_agent(STUDENT).config.agent.action_exponents)
-    env = agent.make_env(level, episodes, seed)
-    teacher = distill.Teacher(TEACHER, env, settle=0.05, retry=1.0, planner=PLANNER,
-                              reverse_margin=0.5, handover=50)
+    exponents = torch.tensor(trained.config.agent.action_exponents)
+    env = trained.make_env(episodes, level, seed)
+    teacher = make_teacher(env, PLANNER, handover=HANDOVER)
     high = env.base_env.action_spec.space.high[0]
-    policy = agent.policy(env)
+    policy = trained.policy
     steps: dict[str, list] = {"inputs": [], "student": [], "label": [], "moving": []}
 
     def actor(td):
@@ -64,7 +60,7 @@ def labelled_episodes(level: float, episodes: int, seed: int) -> dict:
         steps["student"].append(td["action"].clone())
         return td
 
-    run = run_episodes(actor, env, agent.max_steps)
+    run = run_episodes(actor, env, trained.config.env.task.max_steps)
     return {**{k: torch.stack(v) for k, v in steps.items()}, "length": run.length.long(),
             "frozen": run.freezing}
 
@@ -120,11 +116,15 @@ def by_label(off: torch.Tensor, label: torch.Tensor) -> str:
                      for name, m in classes)
 
 
-def fit_probe(data: list[dict], epochs: int) -> str:
+def steering_head(actor):
+    """The student's binned gear head (:class:`trainers.heads.BinnedGearHead`) in its actor."""
+    return actor.module[0].module[0]
+
+
+def fit_probe(trained: TrainedAgent, data: list[dict], epochs: int) -> str:
     """Part (3): a copy of the student fine-tuned on the even lots' states."""
-    trained = load_agent(STUDENT)
     actor = copy.deepcopy(trained.policy)
-    body = actor.module[0].module[0]
+    body = steering_head(actor)
     norm = trained.make_env(1, 0.0, 0).transform[-1].to_observation_norm()
     columns = {k: [] for k in ("inputs", "label", "weight", "even", "frozen")}
     for d in data:
@@ -161,10 +161,11 @@ def main() -> None:
     args = parser.parse_args()
     if args.cache is not None:
         plan.cost_to_go = cached(args.cache)
-    body = load_agent(STUDENT).policy.module[0].module[0]
+    trained = load_agent(STUDENT)
+    body = steering_head(trained.policy)
     data = []
     for level in args.levels:
-        d = labelled_episodes(level, args.episodes, args.seed)
+        d = labelled_episodes(trained, level, args.episodes, args.seed)
         mask = alive(d)
         off = off_bins(body, d["student"], d["label"])[mask]
         print(f"occupancy {level:.0%}: {rocks(d, body)}", flush=True)
@@ -172,7 +173,7 @@ def main() -> None:
               f"{by_label(off, d['label'][mask])}", flush=True)
         data.append(d)
     print(f"fine-tuned {args.epochs} epochs on the even lots, >= 2 bins off: "
-          f"{fit_probe(data, args.epochs)}", flush=True)
+          f"{fit_probe(trained, data, args.epochs)}", flush=True)
 
 
 if __name__ == "__main__":

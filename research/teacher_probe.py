@@ -56,6 +56,24 @@ def cached(cache: Path):
     return cost_to_go
 
 
+def teacher_planner(headings: int, funnel: tuple[float, float] | None, car_margin: float
+                    ) -> PlannerConfig:
+    """The teacher's planner: the committed student's target and gear hold, with ``headings``,
+    the law's ``funnel`` (lateral m, heading rad; None: the target's) and ``car_margin`` m
+    (the committed student's: 96, (0.6, 0.55), 0.2)."""
+    law = {} if funnel is None else dict(law_lateral=funnel[0], law_heading=funnel[1])
+    return PlannerConfig(headings=headings, gear_hold=0.75, lateral=0.25, heading=0.12,
+                         car_margin=car_margin, **law)
+
+
+def make_teacher(env, planner: PlannerConfig, reverse_margin: float = 0.5, handover: int = 0
+                 ) -> distill.Teacher:
+    """The distiller's teacher on ``env``: ``TEACHER``'s aids with the committed law's settle
+    and retry, ``planner``, ``reverse_margin`` m and ``handover`` steps."""
+    return distill.Teacher(TEACHER, env, settle=0.05, retry=1.0, planner=planner,
+                           reverse_margin=reverse_margin, handover=handover)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--levels", type=float, nargs="+", default=[0.0, 0.9])
@@ -71,10 +89,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.cache is not None:
         plan.cost_to_go = cached(args.cache)
-    law = {} if args.funnel is None else dict(law_lateral=args.funnel[0],
-                                              law_heading=args.funnel[1])
-    planner = PlannerConfig(headings=args.headings, gear_hold=0.75, lateral=0.25, heading=0.12,
-                            car_margin=args.car_margin, **law)
+    planner = teacher_planner(args.headings, args.funnel, args.car_margin)
     exponents = torch.tensor(load_trained(STUDENT)[0].agent.action_exponents)
     agent = checkpoint_agent(STUDENT)
     for level in args.levels:
@@ -85,8 +100,7 @@ def probe_level(agent, level: float, args: argparse.Namespace, planner: PlannerC
                 exponents: torch.Tensor) -> None:
     """One level's episodes, the teacher driving; prints its row."""
     env = agent.make_env(level, args.episodes, args.seed)
-    teacher = distill.Teacher(TEACHER, env, settle=0.05, retry=1.0, planner=planner,
-                              reverse_margin=args.reverse_margin, handover=args.handover)
+    teacher = make_teacher(env, planner, args.reverse_margin, args.handover)
     high = env.base_env.action_spec.space.high[0]
     braked = torch.zeros(args.episodes, dtype=torch.bool)
     in_law = torch.zeros_like(braked)
