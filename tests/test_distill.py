@@ -20,7 +20,7 @@ from torchrl.envs.utils import step_mdp
 
 import trainers.distill as distill_module
 from tests.test_agent import rows_predict_as_alone
-from torchpark import AidsConfig, LotConfig, ParkingConfig, ParkingEnv
+from torchpark import AidsConfig, LotConfig, ParkingConfig, ParkingEnv, SlotGaps
 from torchpark.aids.docking import docking_action, error_from_goal
 from torchpark.experts import PlannerConfig
 from torchpark.experts.planner import plan_control
@@ -225,7 +225,8 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("hazard_weight", 0.1),  # without steer_bins
                                           ("hazard_speed", 0.0),
                                           ("hazard_horizon", 0), ("hazard_horizon", 1001),
-                                          ("init", 1)])
+                                          ("init", 1),
+                                          ("slot_features", True)])  # without position
 def test_bad_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=rf"DistillConfig\.{field}"):
         DistillConfig(**{field: value})
@@ -352,6 +353,42 @@ def test_a_student_with_a_scan_memory_reads_it_everywhere_and_predicts_with_it(
     assert not np.array_equal(going_on[1][2:], fresh[1][2:])  # the memory went on
     with pytest.raises(ValueError, match=r"state must be the \(42,\)"):
         agent.predict(after_obs, after_info, state=before[:2])
+
+
+def test_a_student_with_the_slot_features_reads_them_everywhere(teacher_path, tmp_path,
+                                                                coarse_planner):
+    """The slots' gaps join the student's input (before the position) in its rollouts and
+    its final-approach states, each row's the features of its own observation and position;
+    its Gymnasium ``predict`` reads the position from ``info`` and drives the evaluator's
+    episode to the last bit."""
+    out = tmp_path / "slots"
+    main([teacher_path, "--out", str(out), "--iterations", "2", "--envs", "4", "--steps",
+          "5", "--epochs", "1", "--dagger-epochs", "1", "--yardstick", "2", "--approach",
+          "8", "--position", "--slot-features"])
+    cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
+    assert cfg.agent.slot_features
+    assert checkpoint["trained_by"].startswith("distilled (gear head, slot features, "
+                                               "position) from")
+    for iteration in (0, 1):  # iteration 0 holds the final-approach states
+        inputs = torch.load(out / "dagger_data" / f"iteration_{iteration:03d}.pt")[0]
+        assert inputs.shape[-1] == 23 + 7 + 16 + 2
+        gaps = SlotGaps(cfg.env.task)(TensorDict({"observation": inputs[:, :23],
+                                                  "position": inputs[:, -2:]},
+                                                 [inputs.shape[0]]))
+        assert torch.equal(gaps["observation_policy"][:, 23:], inputs[:, 30:46])
+    path = str(out / "checkpoint_final.pt")
+    evaluated = run_level(checkpoint_agent(path), 0.6, episodes=1, seed=5)
+    agent = load_agent(path)
+    env = agent.gym_env(occupancy=0.6, seed=5)
+    obs, info = env.reset()
+    poses, state = [env.unwrapped.env.state.pose[0].clone()], None
+    for _ in range(int(evaluated.length[0])):
+        action, state = agent.predict(obs, info, state=state)
+        obs, _r, terminated, truncated, info = env.step(action)
+        poses.append(env.unwrapped.env.state.pose[0].clone())
+    assert terminated or truncated
+    torch.testing.assert_close(torch.stack(poses), evaluated.poses[:len(poses), 0], rtol=0,
+                               atol=0)
 
 
 def test_a_student_with_binned_steering_is_fitted_and_driven_by_its_bins(teacher_path,

@@ -240,6 +240,9 @@ def test_unknown_preset_or_field_is_an_error():
         load_config("smoke", ["env.nope=1"])
     with pytest.raises(ValueError, match=r"frames_per_batch must be a multiple of env\.num_envs"):
         load_config("smoke", ["env.num_envs=7"])
+    with pytest.raises(ValueError, match=r"agent\.slot_features must be False without "
+                                         r"agent\.aids\.observe_position"):
+        load_config("smoke", ["agent.slot_features=true"])
 
 
 def test_checkpoint_from_another_config_is_refused(smoke_run, tmp_path):

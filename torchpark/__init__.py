@@ -23,6 +23,7 @@ from torchpark.transforms.features import (
     GearTravelFeatures,
     GoalFrameFeatures,
     ScanMemory,
+    SlotGaps,
 )
 
 register()  # gymnasium.make("torchpark/Parking-v0")
@@ -47,5 +48,6 @@ __all__ = [
     "PowerActionMap",
     "RewardConfig",
     "ScanMemory",
+    "SlotGaps",
     "VehicleConfig",
 ]

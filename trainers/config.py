@@ -75,6 +75,11 @@ class AgentConfig:
     # counted from the observations over the episode: the corners the 16 rays of one scan
     # pass between. 0: none.
     scan_memory: int = 0
+    # Append, per LIDAR ray, the gap from the car's box to the nearest slot but the goal's,
+    # as if the slots' lines were walls (torchpark.SlotGaps), from the car's position
+    # (agent.aids.observe_position) and the lot's map: the empty slots a teacher keeping off
+    # them steers by, which the LIDAR does not see.
+    slot_features: bool = False
     # Append the env's braked flag (the brake stopped the last step) to the policy's input:
     # a deterministic policy that pushes into a parked car sees that it was stopped.
     observe_brake: bool = False
@@ -347,6 +352,9 @@ def check_agent(cfg: TrainConfig) -> None:
             "of [-1, 1] actions for the power map)", agent.gear_head)
     require(0 <= agent.scan_memory <= 64, "agent.scan_memory", "an int in [0, 64] (past "
             "scans remembered)", agent.scan_memory)
+    require(not agent.slot_features or agent.aids.observe_position, "agent.slot_features",
+            "False without agent.aids.observe_position (the slots are found from the car's "
+            "position)", agent.slot_features)
     bins = cfg.model.steer_bins
     require(bins == 0 or (bins >= 3 and bins % 2 == 1 and agent.gear_head), "model.steer_bins",
             "0, or an odd int >= 3 with agent.gear_head (the bins steer each gear)", bins)

@@ -15,8 +15,8 @@ drives the paper's env with nothing around it.
                                              [--collision-horizon 10]
                                              [--stall-weight 1] [--stall-from 1]
                                              [--hazard-weight 0] [--hazard-speed 1.5]
-                                             [--hazard-horizon 10] [--init CHECKPOINT]
-                                             [--resume]
+                                             [--hazard-horizon 10] [--slot-features]
+                                             [--init CHECKPOINT] [--resume]
 
 TEACHER is a hybrid checkpoint (``results/fast/checkpoint_final.pt``): its docking law and
 brake join the approach planner in the expert (:class:`Teacher`), its network sizes are the
@@ -64,8 +64,10 @@ The student reads the paper's observation and its goal-frame features, normalise
 ``--clearance-features`` the gap along each ray; with ``--position`` the rear axle's (x, y)
 in the lot, which the planner's route depends on and the paper's observation lacks; with
 ``--gear-features`` the gear the car last moved in and its travel in it, counted from the
-observed speed, which a teacher's ``--gear-hold`` decides by) and
-acts at every step of dt: no brake, no law, no held actions.
+observed speed, which a teacher's ``--gear-hold`` decides by; with ``--slot-features`` the
+gap along each ray to the nearest slot but the goal's, the empty slots the teacher's planner
+keeps off and the LIDAR does not see) and acts at every step of dt: no brake, no law, no
+held actions.
 
 Written into ``--out``: ``checkpoint_final.pt`` (``python -m trainers.evaluate
 DIR/checkpoint_final.pt``), ``checkpoint_best.pt`` (the iteration that scored best on the
@@ -174,6 +176,8 @@ class DistillConfig:
     travel in it (torchpark.GearTravelFeatures), so a held gear's labels are a function of
     its input; ``scan_memory``: 0, or the student also reads the nearest ray end in each
     ray's sector over this scan and that many before it (torchpark.ScanMemory);
+    ``slot_features``: and, per ray, the gap to the nearest slot but the goal's
+    (torchpark.SlotGaps; with ``position``), the slots its teacher keeps off;
     ``steer_bins``: 0, or the bins of the student's steering
     (``ModelConfig.steer_bins``, :class:`trainers.heads.BinnedGearHead`);
     ``target_lateral`` / ``target_heading``: the planner's
@@ -225,6 +229,7 @@ class DistillConfig:
     gear_hold: float = 0.0
     gear_features: bool = False
     scan_memory: int = 0
+    slot_features: bool = False
     steer_bins: int = 0
     target_lateral: float | None = None
     target_heading: float | None = None
@@ -280,6 +285,9 @@ class DistillConfig:
                     value)
         require(0 <= self.scan_memory <= 64, "DistillConfig.scan_memory",
                 "an int in [0, 64]", self.scan_memory)
+        require(not self.slot_features or self.position, "DistillConfig.slot_features",
+                "False without position (the slots are found from the car's position)",
+                self.slot_features)
         require(self.steer_bins == 0 or (3 <= self.steer_bins <= 255
                                          and self.steer_bins % 2 == 1),
                 "DistillConfig.steer_bins", "0, or an odd int in [3, 255]", self.steer_bins)
@@ -456,7 +464,8 @@ def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
                 probability=cfg.near_goal) if cfg.near_goal > 0 else None),
             action_exponents=[cfg.speed_exponent, cfg.steer_exponent], gear_head=True,
             goal_features=True, clearance_features=cfg.clearance_features,
-            gear_features=cfg.gear_features, scan_memory=cfg.scan_memory),
+            gear_features=cfg.gear_features, scan_memory=cfg.scan_memory,
+            slot_features=cfg.slot_features),
         model=dataclasses.replace(tcfg.model, hidden=hidden, steer_bins=cfg.steer_bins),
         logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
     return student
@@ -845,6 +854,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
                                    ("gear features", cfg.gear_features),
                                    (f"a memory of {cfg.scan_memory} scans",
                                     cfg.scan_memory > 0),
+                                   ("slot features", cfg.slot_features),
                                    ("binned steering", cfg.steer_bins > 0),
                                    ("position", cfg.position)) if on]
     made_of = f" ({', '.join(parts)})" if parts else ""

@@ -36,6 +36,7 @@ from torchpark import (
     ParkingEnv,
     PowerActionMap,
     ScanMemory,
+    SlotGaps,
 )
 from torchpark.aids.step import BRAKED
 from torchpark.transforms.sync_free import SyncFreeEnv, SyncFreeRewardScaling, SyncFreeVecNorm
@@ -218,6 +219,9 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
     if agent.scan_memory:
         transforms.append(ScanMemory(base.config, agent.scan_memory, source[0],
                                      "observation_policy"))
+        source = ["observation_policy"]
+    if agent.slot_features:
+        transforms.append(SlotGaps(base.config, source[0], "position", "observation_policy"))
         source = ["observation_policy"]
     if agent.aids.observe_position:
         transforms.append(CatTensors([*source, "position"], "observation_policy",

@@ -1,6 +1,7 @@
 """Policy features computed from the paper's observation: the goal in the vehicle's frame,
-the clearance left along each LIDAR ray, and the gear the car moves in with its travel in it
-(from the observed speed over the episode).
+the clearance left along each LIDAR ray, the gear the car moves in with its travel in it
+(from the observed speed over the episode), a memory of the last scans, and the slots' lines
+as rays would see them (from the observation, the car's position and the lot's map).
 
 The paper's observation gives the goal offset in the world frame; a policy then has to learn a
 rotation by the heading before it can steer. These features hand it the rotated offset, and a
@@ -23,7 +24,9 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
 from torchpark.config import ParkingConfig, is_number, require
-from torchpark.sim.lidar import ray_angles
+from torchpark.sim.geometry import OrientedBoxes, oriented_boxes
+from torchpark.sim.layout import build_layout
+from torchpark.sim.lidar import lidar_scan, line_rotation, ray_angles
 from torchpark.sim.observation import NAV_DIM, SPEED
 from torchpark.sim.vehicle import gear_travel
 
@@ -349,6 +352,93 @@ class ScanMemory(Transform):
         next_tensordict.set(self.out_keys[0], self._features(source, now, self.history))
         self.history = torch.cat([now[..., None, :], self.history[..., :-1, :]], dim=-2)
         return next_tensordict
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        return appended_spec(observation_spec, self.in_keys[0], self.out_keys[0], self.n_rays)
+
+
+def slot_gaps(observation: Tensor, position: Tensor, slots: OrientedBoxes, goals: Tensor,
+              rotation: Tensor, edge: Tensor, offset: float, max_range: float,
+              precision: float = 0.1) -> Tensor:
+    """The gap along each LIDAR ray from the car's box to the nearest slot but the goal's, as
+    if the slots' lines were walls.
+
+    observation: [N, D] starting with the paper's observation (dx, dy, cos psi, sin psi: the
+    goal from the rear axle, m, and the heading); position: [N, 2] the rear axle in the lot,
+    m; slots: the lot's slot rectangles (S,); goals: (S, 2) each slot's goal position (its
+    rear axle, m), which picks the goal's slot (the nearest to position + (dx, dy));
+    rotation: :func:`~torchpark.sim.lidar.line_rotation` of the rays; edge: (R,)
+    :func:`box_edge_distance` of the car's box; offset: the box centre ahead of the rear
+    axle, m. Returns [N, R] ``asinh(gap / precision)``, the gap in m (< 0: the slot reaches
+    into the car's box along the ray; ``max_range`` - edge where none is in range).
+    """
+    dx, dy, c, s = observation[:, :4].unbind(-1)
+    goal = position + torch.stack((dx, dy), -1)
+    goal_slot = torch.cdist(goal, goals).argmin(-1)
+    present = 1.0 - torch.nn.functional.one_hot(goal_slot, goals.shape[0]).to(c.dtype)
+    x, y = position[:, 0] + offset * c, position[:, 1] + offset * s
+    reach = lidar_scan(x, y, c, s, rotation, slots, present, edge.shape[0], max_range)
+    return torch.asinh((reach - edge) / precision)
+
+
+class SlotGaps(Transform):
+    """Writes ``out_key`` = cat(``in_key``, :func:`slot_gaps`): per LIDAR ray, the gap from
+    the car's box to the nearest slot but the goal's. The LIDAR sees parked cars, not the
+    slots' lines: in an empty lot a slot is open ground. A teacher that keeps off every slot
+    but its goal's (the planner's ``slot_cost``) steers by where they are; these features let
+    a student see them. Computed from the observation (``in_key``, which starts with the
+    paper's), the rear axle's position in the lot (``position_key``, the env's with
+    :attr:`~torchpark.aids.config.AidsConfig.observe_position`) and the lot's map, which is
+    the same for every env.
+
+    Args:
+        config: the env's config (its lot, its vehicle's box, its LIDAR's rays and range).
+        in_key: the policy input that starts with the paper's observation.
+        position_key: the rear axle's (x, y) in the lot, m.
+        out_key: where the [..., in_dim + n_rays] input goes (may be ``in_key``).
+        precision: the gap (m) below which the asinh turns linear.
+    """
+
+    def __init__(self, config: ParkingConfig, in_key: str = "observation",
+                 position_key: str = "position", out_key: str = "observation_policy",
+                 precision: float = 0.1) -> None:
+        require(is_number(precision) and math.isfinite(precision) and precision > 0,
+                "precision", "a finite number > 0 (m)", precision)
+        super().__init__(in_keys=[in_key, position_key], out_keys=[out_key])
+        self.n_rays = config.lidar.n_rays
+        self.max_range = config.lidar.max_range
+        self.offset = config.vehicle.centre_offset
+        self.precision = precision
+        layout = build_layout(config.lot, config.vehicle)
+        slots = oriented_boxes(layout.slots)
+        for name, value in zip(OrientedBoxes._fields, slots, strict=True):
+            self.register_buffer(f"slot_{name}", value.contiguous())
+        self.register_buffer("goals", layout.goal_poses[:, :2].contiguous())
+        self.register_buffer("rotation", line_rotation(self.n_rays))
+        self.register_buffer("edge", box_edge_distance(self.n_rays, config.vehicle.length,
+                                                       config.vehicle.width))
+
+    def _call(self, next_tensordict):
+        source = next_tensordict.get(self.in_keys[0])
+        if source.shape[-1] < NAV_DIM:
+            raise ValueError(f"{self.in_keys[0]} must have >= {NAV_DIM} features, got shape "
+                             f"{tuple(source.shape)}")
+        position = next_tensordict.get(self.in_keys[1], None)
+        if position is None:
+            raise KeyError(f"SlotGaps reads the car's position from {self.in_keys[1]!r}: "
+                           "make the env with AidsConfig(observe_position=True)")
+        slots = OrientedBoxes(*(getattr(self, f"slot_{name}") for name in OrientedBoxes._fields))
+        flat = source.reshape(-1, source.shape[-1])
+        gaps = slot_gaps(flat, position.reshape(-1, 2).to(source.dtype), slots, self.goals,
+                         self.rotation, self.edge, self.offset, self.max_range, self.precision)
+        next_tensordict.set(self.out_keys[0], torch.cat(
+            [source, gaps.reshape(*source.shape[:-1], self.n_rays).to(source.dtype)], dim=-1))
+        return next_tensordict
+
+    forward = _call
+
+    def _reset(self, tensordict, tensordict_reset):
+        return self._call(tensordict_reset)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         return appended_spec(observation_spec, self.in_keys[0], self.out_keys[0], self.n_rays)
