@@ -1,8 +1,7 @@
 """The binned steering (trainers.heads.BinnedGearHead): the action is the likeliest bin's
 centre plus its offset, the actor's deterministic action is that action, and a fit keeps one
-of two angles that the same input is labelled with where a regression averages them; the
-hazard error is -log of each gear's probability outside its hazards; PPO and a student
-without the gear head refuse it by name."""
+of two angles that the same input is labelled with where a regression averages them; PPO and a
+student without the gear head refuse it by name."""
 
 from __future__ import annotations
 
@@ -100,36 +99,3 @@ def test_ppo_and_a_student_without_the_gear_head_refuse_the_bins_by_name():
     cfg = load_config("smoke")
     with pytest.raises(ValueError, match=r"model\.steer_bins"):
         check_agent(replace(cfg, model=replace(cfg.model, steer_bins=9)))
-
-
-def test_the_hazard_error_is_minus_log_each_gears_probability_outside_its_hazards():
-    bins = 5
-    torch.manual_seed(0)
-    trunk = nn.Linear(3, BinnedGearHead.out_features(bins))
-    head = BinnedGearHead(trunk, bins, scale_outputs=False)
-    z = torch.randn(4, 3)
-    hazards = torch.zeros(4, 2, bins, dtype=torch.bool)
-    hazards[0, 0, :2] = True  # forward bins 0 and 1; the label's bin 0 stays allowed
-    hazards[0, 1, 3] = True  # reverse bin 3
-    hazards[1, 1] = True  # every reverse bin, the label forward: nothing to steer away to
-    hazards[2, 0] = True  # every forward bin but the label's (4)
-    label = torch.tensor([[0.5, -1.0], [0.5, 0.0], [0.5, 1.0], [-0.5, 0.0]])
-    rev = 1 + 1 + 2 * bins
-    with torch.no_grad():
-        out = trunk(z)
-        p = torch.stack((out[:, 2:2 + bins], out[:, rev + 1:rev + 1 + bins]), 1).softmax(-1)
-    expected = torch.stack([
-        -torch.log(1 - p[0, 0, 1]) - torch.log(1 - p[0, 1, 3]),
-        torch.tensor(0.0),
-        -torch.log(p[2, 0, 4]),
-        torch.tensor(0.0)])
-    error = head.hazard_error(z, hazards, label)
-    torch.testing.assert_close(error, expected)
-    # its gradient is finite everywhere and a step along it moves probability off the hazards
-    error.sum().backward()
-    assert all(t.grad.isfinite().all() for t in trunk.parameters())
-    with torch.no_grad():
-        for t in trunk.parameters():
-            t -= 0.1 * t.grad
-    after = head.hazard_error(z, hazards, label)
-    assert (after[[0, 2]] < error[[0, 2]]).all() and torch.equal(after[[1, 3]], error[[1, 3]])

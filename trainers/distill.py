@@ -14,9 +14,7 @@ drives the paper's env with nothing around it.
                                              [--collision-weight 1]
                                              [--collision-horizon 10]
                                              [--stall-weight 1] [--stall-from 1]
-                                             [--hazard-weight 0] [--hazard-speed 1.5]
-                                             [--hazard-horizon 10] [--slot-features]
-                                             [--init CHECKPOINT] [--resume]
+                                             [--slot-features] [--resume]
 
 TEACHER is a hybrid checkpoint (``results/fast/checkpoint_final.pt``): its docking law and
 brake join the approach planner in the expert (:class:`Teacher`), its network sizes are the
@@ -36,14 +34,7 @@ the student (not the teacher) then stalls from: more than ``STALL_AWAY`` m from 
 in an episode that goes on to the rollout's end, whose next ``FREEZE_STEPS`` steps cover
 ``STALL_TRAVEL`` m or more and end within ``FREEZE_DISTANCE`` of where they began (the
 evaluator's freezing, :mod:`torchpark.runner`, of a car that rocks between the two locks
-the teacher would hold). Fitted to the labels only, the student learns which bin the teacher
-chose, not which of the others would hit a car: with ``--hazard-weight W`` (binned steering)
-the teacher also marks, at every labelled state, the bins of each gear whose arc, held at
-``--hazard-speed`` m/s for ``--hazard-horizon`` steps of dt, touches a parked car or a wall
-(:meth:`Teacher.hazards`), and the fit adds W times -log of each gear's probability outside
-them (:meth:`trainers.heads.BinnedGearHead.hazard_error`): a geometric fact of every state,
-not only of the few before a collision. ``--init CHECKPOINT`` starts the student from an
-earlier run's student (its weights and normaliser), which then drives every iteration.
+the teacher would hold).
 
 The last millimetre asks for speeds of mm/s, a ten-thousandth of the range, and a steering
 that lines the car up to 0.1 deg. The first iteration therefore also labels ``approach``
@@ -191,12 +182,6 @@ class DistillConfig:
     over beyond the target (:class:`Teacher`); ``car_margin``: the teacher's planner keeps
     its car box, grown by that many metres, off the parked cars and walls it is clear of
     (``PlannerConfig.car_margin``);
-    ``hazard_weight``: 0, or the fit also scores each gear's bins against the arcs that touch
-    an obstacle, weighted so (:meth:`Teacher.hazards`, held at ``hazard_speed`` m/s for
-    ``hazard_horizon`` steps of dt; :meth:`trainers.heads.BinnedGearHead.hazard_error`);
-    ``init``: None, or a student's checkpoint of the same input and network (a run of this
-    distiller) whose weights and normaliser the student starts from, and which drives the
-    first iteration in the teacher's place;
     ``lr_decay``: each fit's learning
     rate falls from ``lr`` to 0 along a cosine; ``epochs`` / ``dagger_epochs``: passes over
     the data after the first / each later iteration; ``width`` / ``depth``: the student's
@@ -238,10 +223,6 @@ class DistillConfig:
     funnel_heading: float | None = None
     handover: int = 0
     car_margin: float = 0.0
-    hazard_weight: float = 0.0
-    hazard_speed: float = 1.5
-    hazard_horizon: int = 10
-    init: str | None = None
     width: int | None = None
     depth: int | None = None
     yardstick: int = 200
@@ -252,14 +233,14 @@ class DistillConfig:
         for name, high in (("iterations", 1000), ("envs", 65536), ("steps", 100_000),
                            ("epochs", 1000), ("dagger_epochs", 1000), ("batch_size", 1 << 20),
                            ("yardstick", 65536), ("collision_horizon", 1000),
-                           ("stall_from", 1000), ("hazard_horizon", 1000)):
+                           ("stall_from", 1000)):
             value = getattr(self, name)
             require(1 <= value <= high, f"DistillConfig.{name}", f"an int in [1, {high}]",
                     value)
         require(0 <= self.approach <= 1 << 20, "DistillConfig.approach",
                 "an int in [0, 1048576]", self.approach)
         for name in ("lr", "approach_reach", "approach_weight", "collision_weight",
-                     "stall_weight", "hazard_speed"):
+                     "stall_weight"):
             positive(f"DistillConfig.{name}", getattr(self, name))
         for name in ("speed_exponent", "steer_exponent"):
             value = getattr(self, name)
@@ -272,8 +253,6 @@ class DistillConfig:
             value = getattr(self, name)
             require(0.0 <= value < float("inf"), f"DistillConfig.{name}", "finite, >= 0 (m)",
                     value)
-        require(0.0 <= self.hazard_weight < float("inf"), "DistillConfig.hazard_weight",
-                "finite, >= 0", self.hazard_weight)
         # the funnel's lower bounds (the target's) are PlannerConfig's to check
         for name, (high, unit) in (("target_lateral", (math.inf, "m")),
                                    ("target_heading", (math.pi, "rad")),
@@ -291,8 +270,6 @@ class DistillConfig:
         require(self.steer_bins == 0 or (3 <= self.steer_bins <= 255
                                          and self.steer_bins % 2 == 1),
                 "DistillConfig.steer_bins", "0, or an odd int in [3, 255]", self.steer_bins)
-        require(self.hazard_weight == 0 or self.steer_bins > 0, "DistillConfig.hazard_weight",
-                "0 without steer_bins (the hazards are the bins')", self.hazard_weight)
         require(0 <= self.handover <= HANDOVER_LIMIT, "DistillConfig.handover",
                 f"an int in [0, {HANDOVER_LIMIT}]", self.handover)
         require(self.planner_headings is None or 8 <= self.planner_headings <= 1024,
@@ -403,24 +380,6 @@ class Teacher:
         return clear
 
     @torch.no_grad()
-    def hazards(self, steer: torch.Tensor, speed: float, horizon: int) -> torch.Tensor:
-        """Which steering angles of each gear touch an obstacle, bool (N, 2, B): where the
-        car of each env, from its pose now, driving ``speed`` m/s forwards (0) or backwards
-        (1) with its wheels held at each of ``steer`` (B,) rad, touches a parked car or a
-        wall within ``horizon`` steps of dt (the env's bicycle step and collision test)."""
-        sim, config = self.base.state, self.base.config
-        n, b = sim.pose.shape[0], steer.shape[0]
-        v = torch.tensor([speed, -speed], device=sim.pose.device)[None, :, None]
-        v, delta = v.expand(n, 2, b), steer.expand(n, 2, b)
-        pose = sim.pose[:, None, None].expand(n, 2, b, 3)
-        present = sim.present[:, None, None]
-        hit = torch.zeros(n, 2, b, dtype=torch.bool, device=sim.pose.device)
-        for _ in range(horizon):
-            pose, touched = move(pose, v, delta, present, self.base.world, config)
-            hit |= touched
-        return hit
-
-    @torch.no_grad()
     def label(self) -> torch.Tensor:
         sim, law = self.base.state, self.aids.docking
         error = error_from_goal(sim.pose, sim.goal)
@@ -519,20 +478,9 @@ def approach_states(env: TransformedEnv, features: Transform, teacher: Teacher,
     return torch.cat(inputs), torch.cat(labels)
 
 
-class Hazards(typing.NamedTuple):
-    """The arcs :meth:`Teacher.hazards` tests at every labelled state: the steering
-    angles (B,) rad (the student's bin centres), held at ``speed`` m/s for ``horizon``
-    steps of dt."""
-
-    steer: torch.Tensor
-    speed: float
-    horizon: int
-
-
 def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tensor, steps: int,
-            teacher_drives: bool, noise: float, generator: torch.Generator,
-            hazards: Hazards | None = None
-            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+            teacher_drives: bool, noise: float, generator: torch.Generator
+            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``steps`` steps of dt of ``env`` (every row reset first), driven by the teacher's
     labels or the student's deterministic actions, noisy on every other row (Gaussian,
     ``noise`` times the env's bounds, added to the env's action). Returns the student's raw
@@ -541,13 +489,11 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tenso
     picks by :func:`~torchpark.transforms.actions.gear_select`), per state, the steps
     of dt to the collision that ends its episode (steps x N,; inf where the episode does
     not end in one within the rollout: :func:`steps_to_collision`) and whether the driver
-    stalls from it (steps x N, bool: :func:`steps_in_stall`) and, per state, which of
-    ``hazards``' arcs touch an obstacle (steps x N, 2, B) bool (B = 0 without them)."""
+    stalls from it (steps x N, bool: :func:`steps_in_stall`)."""
     n = env.base_env.num_envs
     high = env.base_env.action_spec.space.high[0]
     noisy = (torch.arange(n, device=env.device) % 2 == 1)[:, None]
-    inputs, labels, collided, done, positions, goals, hazard = [], [], [], [], [], [], []
-    none = torch.zeros(n, 2, 0, dtype=torch.bool, device=env.device)
+    inputs, labels, collided, done, positions, goals = [], [], [], [], [], []
     teacher.forget(torch.ones(n, dtype=torch.bool, device=env.device))
     td = env.reset()
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
@@ -555,7 +501,6 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tenso
             positions.append(env.base_env.state.pose[:, :2])
             goals.append(env.base_env.state.goal[:, :2])
             target = power_map_inverse(teacher.label(), high, exponents)
-            hazard.append(none if hazards is None else teacher.hazards(*hazards))
             inputs.append(td[STUDENT_INPUT])
             labels.append(target)
             action = target
@@ -575,8 +520,7 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tenso
     done = torch.stack(done)
     ahead = steps_to_collision(torch.stack(collided), done)
     stalls = steps_in_stall(torch.stack(positions), torch.stack(goals), done)
-    return (torch.cat(inputs), torch.cat(labels), ahead.reshape(-1), stalls.reshape(-1),
-            torch.cat(hazard))
+    return torch.cat(inputs), torch.cat(labels), ahead.reshape(-1), stalls.reshape(-1)
 
 
 def steps_in_stall(positions: torch.Tensor, goals: torch.Tensor, done: torch.Tensor,
@@ -627,13 +571,11 @@ def steps_to_collision(collided: torch.Tensor, done: torch.Tensor) -> torch.Tens
 
 def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor,
         epochs: int, cfg: DistillConfig, optim: torch.optim.Optimizer,
-        generator: torch.Generator, hazards: torch.Tensor | None = None) -> float:
+        generator: torch.Generator) -> float:
     """``epochs`` passes of minibatch regression of the student's deterministic action (tanh
     of its loc) on the labels (N, 2) (:func:`imitation_error`, or the binned steering's own,
     :meth:`trainers.heads.BinnedGearHead.imitation_error`; weighted per state by ``weights``
-    (N,)), plus ``cfg.hazard_weight`` times the binned steering's
-    :meth:`~trainers.heads.BinnedGearHead.hazard_error` against ``hazards`` (N, 2, bins)
-    where given, the learning rate from ``cfg.lr`` (to 0 along a cosine with
+    (N,)), the learning rate from ``cfg.lr`` (to 0 along a cosine with
     ``cfg.lr_decay``); returns the last epoch's mean loss."""
     net = actor.module[0]
     body = net.module[0]  # the policy's network before its scale head
@@ -649,9 +591,6 @@ def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.
             td = norm(TensorDict({STUDENT_INPUT: inputs[index]}, [index.shape[0]]))
             if isinstance(body, BinnedGearHead):
                 error = body.imitation_error(td[NORMALISED], labels[index])
-                if cfg.hazard_weight and hazards is not None:
-                    error = error + cfg.hazard_weight * body.hazard_error(
-                        td[NORMALISED], hazards[index], labels[index])
             else:
                 error = imitation_error(torch.tanh(net(td)["loc"]), labels[index])
             loss = (weights[index] * error).mean()
@@ -667,7 +606,7 @@ def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.
 # What a run writes into --out (none is replaced without --overwrite).
 OUTPUTS = ("checkpoint_final.pt", "checkpoint_best.pt", "dagger.csv", "dagger_state.pt")
 # What --resume continues from: the run's state after its last finished iteration, and each
-# iteration's labelled states (inputs, labels, weights, hazards), in this folder.
+# iteration's labelled states (inputs, labels, weights), in this folder.
 STATE, DATA = "dagger_state.pt", "dagger_data"
 # The checks that pick checkpoint_best.pt: the paper's test from uniform starts, empty and
 # at 90 % (their sum).
@@ -719,6 +658,11 @@ def run_state(out: Path, teacher_path: str, cfg: DistillConfig) -> dict:
     ours = dataclasses.asdict(cfg)
     # A setting added since the run was saved holds its default there.
     theirs = {**{f.name: f.default for f in dataclasses.fields(DistillConfig)}, **theirs}
+    gone = sorted(set(theirs) - set(ours))
+    if gone:
+        raise ValueError(f"--resume: the run in {out} has {gone[0]}={theirs[gone[0]]!r}, a "
+                         f"setting this distiller no longer has (resume it at the commit "
+                         f"that started it)")
     differs = sorted(k for k in set(ours) | set(theirs)
                      if k != "iterations" and ours.get(k) != theirs.get(k))
     if differs:
@@ -744,16 +688,14 @@ def teacher_digest(path: str) -> str:
 
 
 def load_data(out: Path, iteration: int, device: torch.device) -> list[torch.Tensor]:
-    """The (inputs, labels, weights, hazards) labelled in ``iteration`` of the run in
-    ``out``."""
+    """The (inputs, labels, weights) labelled in ``iteration`` of the run in ``out``."""
     path = data_path(out, iteration)
     try:
-        inputs, labels, weights, hazards = torch.load(path, map_location=device,
-                                                      weights_only=True)
-    except Exception as err:  # not a torch file, not plain data, or not four tensors
+        inputs, labels, weights = torch.load(path, map_location=device, weights_only=True)
+    except Exception as err:  # not a torch file, not plain data, or not three tensors
         raise ValueError(f"--resume: {path} is not a distiller's labelled data "
                          f"({type(err).__name__})") from None
-    return [inputs, labels, weights, hazards]
+    return [inputs, labels, weights]
 
 
 def data_path(out: Path, iteration: int) -> Path:
@@ -774,26 +716,6 @@ def teacher_planner(cfg: DistillConfig, planner: PlannerConfig | None = None
                                car_margin=cfg.car_margin, **given)
 
 
-def start_from(path: str, scfg: TrainConfig, actor, norm: Transform) -> None:
-    """Load the student's weights and normaliser (frozen) from the checkpoint at ``path``
-    (``DistillConfig.init``), refused unless it has the student's input and network."""
-    cfg, checkpoint = load_trained(path)
-    for name in ("agent", "model"):
-        ours, theirs = (dataclasses.asdict(getattr(c, name)) for c in (scfg, cfg))
-        differs = sorted(k for k in ours if ours[k] != theirs[k])
-        if differs:
-            key = differs[0]
-            raise ValueError(f"--init: {path} has {name}.{key}={theirs[key]!r}, this command's "
-                             f"student {name}.{key}={ours[key]!r}")
-    try:
-        actor.load_state_dict(checkpoint["actor"])
-        norm.load_state_dict(checkpoint["obs_norm"])
-    except (KeyError, RuntimeError) as err:
-        raise ValueError(f"--init: {path} has no student's weights of this shape "
-                         f"({type(err).__name__})") from None
-    norm.freeze()
-
-
 def distill(teacher_path: str, out: Path, cfg: DistillConfig,
             planner: PlannerConfig | None = None, resume: bool = False) -> Path:
     """Run DAgger; returns the final checkpoint's path. ``planner``: the teacher's
@@ -809,8 +731,6 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     generator = torch.Generator().manual_seed(cfg.seed)
     base = make_base_env(scfg, training=True)
     high = base.action_spec.space.high[0]
-    require(cfg.hazard_speed <= high[0].item(), "DistillConfig.hazard_speed",
-            f"in (0, {high[0].item():g}] m/s (the env's speed bound)", cfg.hazard_speed)
     inputs = policy_input(scfg, base)
     env = TransformedEnv(base, Compose(*inputs))
     norm = inputs[-1]
@@ -820,19 +740,10 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
     actor, _ = build_models(scfg)
     exponents = torch.tensor([cfg.speed_exponent, cfg.steer_exponent], device=base.device)
-    hazards = None
-    if cfg.hazard_weight:
-        centres = torch.linspace(-1.0, 1.0, cfg.steer_bins, device=base.device)
-        steer = power_map(torch.stack((torch.zeros_like(centres), centres), -1), high,
-                          exponents)[:, 1]
-        hazards = Hazards(steer, cfg.hazard_speed, cfg.hazard_horizon)
-    width = cfg.steer_bins if hazards is not None else 0
-    if cfg.init is not None and saved is None:
-        start_from(cfg.init, scfg, actor, norm)
     teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, teacher_planner(cfg, planner),
                       cfg.reverse_margin, cfg.handover)
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
-    data, rows = [], []  # (inputs, labels, weights, hazards) per iteration
+    data, rows = [], []  # (inputs, labels, weights) per iteration
     frames = approach = first = 0
     elapsed = 0.0
     if saved is not None:
@@ -870,9 +781,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     if cfg.handover:
         source += (f" (its law taking over beyond the target only where {cfg.handover} steps of "
                    f"it ahead touch nothing)")
-    if cfg.init is not None:
-        source += f", starting from the student {cfg.init}"
-    dagger = "DAgger throughout" if cfg.init is not None else "DAgger after the first"
+    dagger = "DAgger after the first"
     if cfg.collision_weight != 1.0:
         dagger += (f"; the states up to {cfg.collision_horizon} steps before its own "
                    f"collisions weighted {cfg.collision_weight:g}")
@@ -880,22 +789,17 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
         dagger += f"; the states it stalls from weighted {cfg.stall_weight:g}"
         if cfg.stall_from != 1:
             dagger += f" from iteration {cfg.stall_from}"
-    if cfg.hazard_weight:
-        dagger += (f"; each bin taught its arcs that touch an obstacle within "
-                   f"{cfg.hazard_horizon} steps at {cfg.hazard_speed:g} m/s, weighted "
-                   f"{cfg.hazard_weight:g}")
     started = time.perf_counter() - elapsed
     for iteration in range(first, cfg.iterations):
         batches = []
         for level in PAPER_LEVELS:
             base.occupancy = level
-            x, y, ahead, stalled, hazard = rollout(
-                env, actor, teacher, exponents, cfg.steps, iteration == 0 and cfg.init is None,
-                cfg.noise, generator, hazards)
+            x, y, ahead, stalled = rollout(env, actor, teacher, exponents, cfg.steps,
+                                           iteration == 0, cfg.noise, generator)
             stalls = stalled & (iteration >= cfg.stall_from)
             batches.append((x, y, torch.where(ahead <= cfg.collision_horizon,
                                               cfg.collision_weight, 1.0)
-                            * torch.where(stalls, cfg.stall_weight, 1.0), hazard))
+                            * torch.where(stalls, cfg.stall_weight, 1.0)))
             frames += x.shape[0]
         if iteration == 0:
             norm.freeze()  # the teacher's states set the student's input scale
@@ -904,17 +808,14 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
             x, y = approach_states(env, features, teacher, cfg.approach, cfg.approach_reach,
                                    generator)
             batches.append((x, power_map_inverse(y, high, exponents),
-                            torch.full((x.shape[0],), cfg.approach_weight, device=x.device),
-                            torch.zeros(x.shape[0], 2, width, dtype=torch.bool,
-                                        device=x.device)))
+                            torch.full((x.shape[0],), cfg.approach_weight, device=x.device)))
             approach += x.shape[0]
         data.append([torch.cat(column) for column in zip(*batches, strict=True)])
         data_path(out, iteration).parent.mkdir(exist_ok=True)
         save_torch(data[-1], data_path(out, iteration))
-        x, y, w, h = (torch.cat(column) for column in zip(*data, strict=True))
+        x, y, w = (torch.cat(column) for column in zip(*data, strict=True))
         epochs = cfg.epochs if iteration == 0 else cfg.dagger_epochs
-        loss = fit(actor, norm.to_observation_norm(), x, y, w, epochs, cfg, optim, generator,
-                   h)
+        loss = fit(actor, norm.to_observation_norm(), x, y, w, epochs, cfg, optim, generator)
         row = {"iteration": iteration, "frames": frames, "approach_states": approach,
                "samples": x.shape[0], "loss": loss,
                **check(actor, scfg, norm.state_dict(), cfg.yardstick, cfg.seed + 1000),

@@ -109,18 +109,3 @@ class BinnedGearHead(nn.Module):
         return (imitation_error(u, label)
                 + CLASS_WEIGHT * nn.functional.cross_entropy(logits, k, reduction="none")
                 + OFFSET_WEIGHT * (self.centres[k] + offset - steer).pow(2) / self.half ** 2)
-
-    def hazard_error(self, z: Tensor, hazards: Tensor, label: Tensor) -> Tensor:
-        """-log of each gear's probability of a bin outside its hazards, summed over the two
-        gears, (N,): at inputs ``z`` (N, D), ``hazards`` (N, 2, bins) bool (forward, reverse:
-        the bins whose arc touches an obstacle, :meth:`trainers.distill.Teacher.hazards`),
-        the label's (N, 2) own bin allowed in its own gear; 0 for a gear whose every bin is
-        a hazard (nothing there to steer away to)."""
-        _, forward, reverse = self._parts(z)
-        logits = torch.stack((forward[:, 1:1 + self.bins], reverse[:, 1:1 + self.bins]), 1)
-        rows = torch.arange(z.shape[0], device=z.device)
-        allowed = ~hazards
-        allowed[rows, (label[:, 0] < 0).long(), self.label_bin(label[:, 1])] = True
-        allowed = allowed | ~allowed.any(-1, keepdim=True)
-        safe = logits.masked_fill(~allowed, -torch.inf).logsumexp(-1)
-        return (logits.logsumexp(-1) - safe).sum(-1)
