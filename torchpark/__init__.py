@@ -23,6 +23,7 @@ from torchpark.transforms.features import (
     GearTravelFeatures,
     GoalFrameFeatures,
     ScanMemory,
+    SlotArcs,
     SlotGaps,
 )
 
@@ -48,6 +49,7 @@ __all__ = [
     "PowerActionMap",
     "RewardConfig",
     "ScanMemory",
+    "SlotArcs",
     "SlotGaps",
     "VehicleConfig",
 ]

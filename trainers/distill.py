@@ -169,6 +169,9 @@ class DistillConfig:
     ray's sector over this scan and that many before it (torchpark.ScanMemory);
     ``slot_features``: and, per ray, the gap to the nearest slot but the goal's
     (torchpark.SlotGaps; with ``position``), the slots its teacher keeps off;
+    ``arc_features``: and, per steering bin and gear, the share of a short held arc it
+    drives before crossing such a slot (torchpark.SlotArcs; with ``position`` and
+    ``steer_bins``);
     ``steer_bins``: 0, or the bins of the student's steering
     (``ModelConfig.steer_bins``, :class:`trainers.heads.BinnedGearHead`);
     ``target_lateral`` / ``target_heading``: the planner's
@@ -215,6 +218,7 @@ class DistillConfig:
     gear_features: bool = False
     scan_memory: int = 0
     slot_features: bool = False
+    arc_features: bool = False
     steer_bins: int = 0
     target_lateral: float | None = None
     target_heading: float | None = None
@@ -267,6 +271,9 @@ class DistillConfig:
         require(not self.slot_features or self.position, "DistillConfig.slot_features",
                 "False without position (the slots are found from the car's position)",
                 self.slot_features)
+        require(not self.arc_features or (self.position and self.steer_bins > 0),
+                "DistillConfig.arc_features", "False without position and steer_bins (the "
+                "arcs are the bins', found from the car's position)", self.arc_features)
         require(self.steer_bins == 0 or (3 <= self.steer_bins <= 255
                                          and self.steer_bins % 2 == 1),
                 "DistillConfig.steer_bins", "0, or an odd int in [3, 255]", self.steer_bins)
@@ -424,7 +431,7 @@ def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
             action_exponents=[cfg.speed_exponent, cfg.steer_exponent], gear_head=True,
             goal_features=True, clearance_features=cfg.clearance_features,
             gear_features=cfg.gear_features, scan_memory=cfg.scan_memory,
-            slot_features=cfg.slot_features),
+            slot_features=cfg.slot_features, arc_features=cfg.arc_features),
         model=dataclasses.replace(tcfg.model, hidden=hidden, steer_bins=cfg.steer_bins),
         logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
     return student
@@ -766,6 +773,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
                                    (f"a memory of {cfg.scan_memory} scans",
                                     cfg.scan_memory > 0),
                                    ("slot features", cfg.slot_features),
+                                   ("arc features", cfg.arc_features),
                                    ("binned steering", cfg.steer_bins > 0),
                                    ("position", cfg.position)) if on]
     made_of = f" ({', '.join(parts)})" if parts else ""
