@@ -221,7 +221,8 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("steer_bins", 257),
                                           ("width", 0), ("width", True), ("depth", 9),
                                           ("depth", 2.0),
-                                          ("slot_features", True)])  # without position
+                                          ("slot_features", True),  # without position
+                                          ("arc_features", True)])  # nor steer_bins
 def test_bad_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=rf"DistillConfig\.{field}"):
         DistillConfig(**{field: value})
