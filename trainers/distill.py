@@ -14,7 +14,8 @@ drives the paper's env with nothing around it.
                                              [--collision-weight 1]
                                              [--collision-horizon 10]
                                              [--stall-weight 1] [--stall-from 1]
-                                             [--slot-features] [--resume]
+                                             [--slot-features] [--arc-features]
+                                             [--resume]
 
 TEACHER is a hybrid checkpoint (``results/fast/checkpoint_final.pt``): its docking law and
 brake join the approach planner in the expert (:class:`Teacher`), its network sizes are the
@@ -57,8 +58,9 @@ in the lot, which the planner's route depends on and the paper's observation lac
 ``--gear-features`` the gear the car last moved in and its travel in it, counted from the
 observed speed, which a teacher's ``--gear-hold`` decides by; with ``--slot-features`` the
 gap along each ray to the nearest slot but the goal's, the empty slots the teacher's planner
-keeps off and the LIDAR does not see) and acts at every step of dt: no brake, no law, no
-held actions.
+keeps off and the LIDAR does not see; with ``--arc-features``, per steering bin and gear,
+the share of a 1.5 m held arc driven before the car's box crosses such a slot) and acts at
+every step of dt: no brake, no law, no held actions.
 
 Written into ``--out``: ``checkpoint_final.pt`` (``python -m trainers.evaluate
 DIR/checkpoint_final.pt``), ``checkpoint_best.pt`` (the iteration that scored best on the

@@ -358,6 +358,22 @@ class ScanMemory(Transform):
         return appended_spec(observation_spec, self.in_keys[0], self.out_keys[0], self.n_rays)
 
 
+def observation_and_position(tensordict, keys: list[str], reader: str
+                             ) -> tuple[Tensor, Tensor]:
+    """What a feature placed by the lot's map reads from ``tensordict``: the input at
+    ``keys[0]`` (which starts with the paper's observation) and the rear axle's position at
+    ``keys[1]``; an error naming ``reader`` and what is missing."""
+    source = tensordict.get(keys[0])
+    if source.shape[-1] < NAV_DIM:
+        raise ValueError(f"{keys[0]} must have >= {NAV_DIM} features, got shape "
+                         f"{tuple(source.shape)}")
+    position = tensordict.get(keys[1], None)
+    if position is None:
+        raise KeyError(f"{reader} reads the car's position from {keys[1]!r}: make the env "
+                       "with AidsConfig(observe_position=True)")
+    return source, position
+
+
 def slot_gaps(observation: Tensor, position: Tensor, slots: OrientedBoxes, goals: Tensor,
               rotation: Tensor, edge: Tensor, offset: float, max_range: float,
               precision: float = 0.1) -> Tensor:
@@ -420,14 +436,7 @@ class SlotGaps(Transform):
                                                        config.vehicle.width))
 
     def _call(self, next_tensordict):
-        source = next_tensordict.get(self.in_keys[0])
-        if source.shape[-1] < NAV_DIM:
-            raise ValueError(f"{self.in_keys[0]} must have >= {NAV_DIM} features, got shape "
-                             f"{tuple(source.shape)}")
-        position = next_tensordict.get(self.in_keys[1], None)
-        if position is None:
-            raise KeyError(f"SlotGaps reads the car's position from {self.in_keys[1]!r}: "
-                           "make the env with AidsConfig(observe_position=True)")
+        source, position = observation_and_position(next_tensordict, self.in_keys, "SlotGaps")
         slots = OrientedBoxes(*(getattr(self, f"slot_{name}") for name in OrientedBoxes._fields))
         flat = source.reshape(-1, source.shape[-1])
         gaps = slot_gaps(flat, position.reshape(-1, 2).to(source.dtype), slots, self.goals,
@@ -512,14 +521,7 @@ class SlotArcs(Transform):
         self.register_buffer("steer", steer.detach().to(torch.float32).clone())
 
     def _call(self, next_tensordict):
-        source = next_tensordict.get(self.in_keys[0])
-        if source.shape[-1] < NAV_DIM:
-            raise ValueError(f"{self.in_keys[0]} must have >= {NAV_DIM} features, got shape "
-                             f"{tuple(source.shape)}")
-        position = next_tensordict.get(self.in_keys[1], None)
-        if position is None:
-            raise KeyError(f"SlotArcs reads the car's position from {self.in_keys[1]!r}: "
-                           "make the env with AidsConfig(observe_position=True)")
+        source, position = observation_and_position(next_tensordict, self.in_keys, "SlotArcs")
         flat = source.reshape(-1, source.shape[-1])
         at = position.reshape(-1, 2).to(flat.dtype)
         dx, dy, c, s = flat[:, :4].unbind(-1)
