@@ -20,7 +20,7 @@ from torchrl.envs.utils import step_mdp
 
 import trainers.distill as distill_module
 from tests.test_agent import rows_predict_as_alone
-from torchpark import AidsConfig, LotConfig, ParkingConfig, ParkingEnv, SlotArcs, SlotGaps
+from torchpark import AidsConfig, LotConfig, ParkingConfig, ParkingEnv, SlotGaps
 from torchpark.aids.docking import docking_action, error_from_goal
 from torchpark.experts import PlannerConfig
 from torchpark.experts.planner import plan_control
@@ -221,8 +221,7 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("steer_bins", 257),
                                           ("width", 0), ("width", True), ("depth", 9),
                                           ("depth", 2.0),
-                                          ("slot_features", True),  # without position
-                                          ("arc_features", True)])  # nor steer_bins
+                                          ("slot_features", True)])  # without position
 def test_bad_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=rf"DistillConfig\.{field}"):
         DistillConfig(**{field: value})
@@ -385,34 +384,6 @@ def test_a_student_with_the_slot_features_reads_them_everywhere(teacher_path, tm
     assert terminated or truncated
     torch.testing.assert_close(torch.stack(poses), evaluated.poses[:len(poses), 0], rtol=0,
                                atol=0)
-
-
-def test_a_student_with_the_arc_features_reads_its_bins_arcs_everywhere(teacher_path, tmp_path,
-                                                                      coarse_planner):
-    """The bins' arcs join the student's input (before the position) in its rollouts and its
-    final-approach states, each row's those of its own observation and position, at the
-    bins' own steering angles; the evaluator drives it."""
-    out = tmp_path / "arcs"
-    main([teacher_path, "--out", str(out), "--iterations", "2", "--envs", "4", "--steps",
-          "5", "--epochs", "1", "--dagger-epochs", "1", "--yardstick", "2", "--approach",
-          "8", "--position", "--steer-bins", "5", "--arc-features"])
-    cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
-    assert cfg.agent.arc_features
-    assert checkpoint["trained_by"].startswith("distilled (gear head, arc features, binned "
-                                               "steering, position) from")
-    steer = torch.linspace(-1.0, 1.0, 5) * cfg.env.task.vehicle.max_steer
-    for iteration in (0, 1):  # iteration 0 holds the final-approach states
-        inputs = torch.load(out / "dagger_data" / f"iteration_{iteration:03d}.pt")[0]
-        assert inputs.shape[-1] == 23 + 7 + 2 * 5 + 2
-        arcs = SlotArcs(cfg.env.task, steer)(TensorDict({"observation": inputs[:, :23],
-                                                         "position": inputs[:, -2:]},
-                                                        [inputs.shape[0]]))
-        torch.testing.assert_close(arcs["observation_policy"][:, 23:], inputs[:, 30:40],
-                                   rtol=0, atol=1e-6)
-        assert (inputs[:, 30:40] < 1).any() and (inputs[:, 30:40] == 1).any()
-    run = run_level(checkpoint_agent(str(out / "checkpoint_final.pt")), 0.6, episodes=2,
-                    seed=5)
-    assert run.length.min() >= 1
 
 
 def test_a_student_with_binned_steering_is_fitted_and_driven_by_its_bins(teacher_path,

@@ -22,7 +22,6 @@ from torchpark import (
     ParkingConfig,
     ParkingEnv,
     ScanMemory,
-    SlotArcs,
     SlotGaps,
 )
 from torchpark.aids.config import AidsConfig
@@ -347,75 +346,3 @@ def test_slot_gaps_need_the_position_and_a_good_precision():
     with pytest.raises(ValueError, match=">= 7 features"):
         SlotGaps(cfg)(TensorDict({"observation": torch.zeros(2, 3),
                                   "position": torch.zeros(2, 2)}, [2]))
-
-
-def test_slot_arcs_against_a_float64_bicycle_and_shapely_boxes():
-    """Random driving in an empty lot and a full one: after every step each (gear, bin)
-    feature is the share of its held arc (1.5 m/s, 10 steps of dt) the car drives before its
-    box first touches a slot but the goal's or a wall, as a float64 bicycle with shapely's
-    boxes counts it; where the two differ the deciding box is within 1 mm of touching or of
-    clearing (float32 against float64 at a boundary). The observation passes through."""
-    from shapely.geometry import Polygon
-    from shapely.ops import unary_union
-
-    cfg = ParkingConfig(max_steps=30)
-    steer = torch.linspace(-1.0, 1.0, 5) * cfg.vehicle.max_steer
-    v, car = cfg.vehicle, None
-    wrong = checked = 0
-    runs = []
-    for occupancy in (0.0, 0.9):
-        env = ParkingEnv(8, seed=6, config=cfg, aids=AidsConfig(observe_position=True))
-        env.occupancy = occupancy
-        boxes = [Polygon(_corners(*b)) for b in
-                 torch.cat((env.layout.slots, env.layout.walls)).double().tolist()]
-        tenv = TransformedEnv(env, SlotArcs(cfg, steer, in_key="observation"))
-        check_env_specs(tenv)
-        generator = torch.Generator().manual_seed(3)
-        td = tenv.reset()
-        for _ in range(6):
-            got = td["observation_policy"][:, 23:].reshape(8, 2, 5)
-            assert torch.equal(td["observation_policy"][:, :23], td["observation"])
-            for i in range(8):
-                blocked = unary_union([b for j, b in enumerate(boxes)
-                                       if j != int(env.state.goal_slot[i])])
-                for gear, speed in enumerate((1.5, -1.5)):
-                    for k, delta in enumerate(steer.double().tolist()):
-                        x, y, psi = env.state.pose[i].double().tolist()
-                        run = 0
-                        for _step in range(10):
-                            x += speed * v.dt * math.cos(psi)
-                            y += speed * v.dt * math.sin(psi)
-                            psi += speed * v.dt * math.tan(delta) / v.wheelbase
-                            car = Polygon(_corners(
-                                x + v.centre_offset * math.cos(psi),
-                                y + v.centre_offset * math.sin(psi), psi, v.length / 2,
-                                v.width / 2))
-                            if car.intersects(blocked):
-                                break
-                            run += 1
-                        checked += 1
-                        runs.append(run)
-                        if got[i, gear, k].item() != pytest.approx(run / 10, abs=1e-6):
-                            wrong += 1
-                            # the box that decided is at a boundary, within 1 mm
-                            assert (car.distance(blocked) < 1e-3
-                                    or not car.buffer(-1e-3).intersects(blocked))
-            td["action"] = (torch.rand(8, 2, generator=generator) * 2 - 1) * torch.tensor(
-                [5.0, 0.785])
-            td, td = tenv.step_and_maybe_reset(td)
-    assert checked == 2 * 6 * 8 * 10 and wrong <= checked // 100
-    # both kinds of arcs were there: clear to the end, and stopped at many points on the way
-    assert 10 in runs and len(set(runs)) >= 6
-
-
-def test_slot_arcs_are_refused_out_of_range_and_need_the_position():
-    cfg = ParkingConfig()
-    steer = torch.zeros(3)
-    with pytest.raises(ValueError, match=r"^speed must be in \(0, "):
-        SlotArcs(cfg, steer, speed=0.0)
-    with pytest.raises(ValueError, match=r"^steps must be an int in \[1, 100\]"):
-        SlotArcs(cfg, steer, steps=0)
-    with pytest.raises(ValueError, match=r"^steer must be a \(B,\) tensor"):
-        SlotArcs(cfg, torch.tensor([2.0]))
-    with pytest.raises(KeyError, match="observe_position"):
-        SlotArcs(cfg, steer)(ParkingEnv(2, seed=0).reset())

@@ -243,9 +243,6 @@ def test_unknown_preset_or_field_is_an_error():
     with pytest.raises(ValueError, match=r"agent\.slot_features must be False without "
                                          r"agent\.aids\.observe_position"):
         load_config("smoke", ["agent.slot_features=true"])
-    with pytest.raises(ValueError, match=r"agent\.arc_features must be False without "
-                                         r"agent\.aids\.observe_position and model\.steer_bins"):
-        load_config("smoke", ["agent.arc_features=true", "agent.aids.observe_position=true"])
 
 
 def test_checkpoint_from_another_config_is_refused(smoke_run, tmp_path):

@@ -23,7 +23,6 @@ from torchpark.transforms.features import (
     GearTravelFeatures,
     GoalFrameFeatures,
     ScanMemory,
-    SlotArcs,
     SlotGaps,
 )
 
@@ -49,7 +48,6 @@ __all__ = [
     "PowerActionMap",
     "RewardConfig",
     "ScanMemory",
-    "SlotArcs",
     "SlotGaps",
     "VehicleConfig",
 ]

@@ -80,11 +80,6 @@ class AgentConfig:
     # (agent.aids.observe_position) and the lot's map: the empty slots a teacher keeping off
     # them steers by, which the LIDAR does not see.
     slot_features: bool = False
-    # Append, per steering bin (model.steer_bins) and gear, the share of a short held arc the
-    # car drives before its box crosses a slot but the goal's or a wall (torchpark.SlotArcs),
-    # from the car's position and the lot's map: the bins a teacher keeping off the slots
-    # does not take.
-    arc_features: bool = False
     # Append the env's braked flag (the brake stopped the last step) to the policy's input:
     # a deterministic policy that pushes into a parked car sees that it was stopped.
     observe_brake: bool = False
@@ -363,10 +358,6 @@ def check_agent(cfg: TrainConfig) -> None:
     bins = cfg.model.steer_bins
     require(bins == 0 or (bins >= 3 and bins % 2 == 1 and agent.gear_head), "model.steer_bins",
             "0, or an odd int >= 3 with agent.gear_head (the bins steer each gear)", bins)
-    require(not agent.arc_features or (agent.aids.observe_position and bins > 0),
-            "agent.arc_features", "False without agent.aids.observe_position and "
-            "model.steer_bins (the arcs are the bins', found from the car's position)",
-            agent.arc_features)
 
 
 def _check_dist(cfg: TrainConfig) -> None:

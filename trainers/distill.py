@@ -14,8 +14,7 @@ drives the paper's env with nothing around it.
                                              [--collision-weight 1]
                                              [--collision-horizon 10]
                                              [--stall-weight 1] [--stall-from 1]
-                                             [--slot-features] [--arc-features]
-                                             [--resume]
+                                             [--slot-features] [--resume]
 
 TEACHER is a hybrid checkpoint (``results/fast/checkpoint_final.pt``): its docking law and
 brake join the approach planner in the expert (:class:`Teacher`), its network sizes are the
@@ -58,9 +57,8 @@ in the lot, which the planner's route depends on and the paper's observation lac
 ``--gear-features`` the gear the car last moved in and its travel in it, counted from the
 observed speed, which a teacher's ``--gear-hold`` decides by; with ``--slot-features`` the
 gap along each ray to the nearest slot but the goal's, the empty slots the teacher's planner
-keeps off and the LIDAR does not see; with ``--arc-features``, per steering bin and gear,
-the share of a 1.5 m held arc driven before the car's box crosses such a slot) and acts at
-every step of dt: no brake, no law, no held actions.
+keeps off and the LIDAR does not see) and acts at every step of dt: no brake, no law, no
+held actions.
 
 Written into ``--out``: ``checkpoint_final.pt`` (``python -m trainers.evaluate
 DIR/checkpoint_final.pt``), ``checkpoint_best.pt`` (the iteration that scored best on the
@@ -171,9 +169,6 @@ class DistillConfig:
     ray's sector over this scan and that many before it (torchpark.ScanMemory);
     ``slot_features``: and, per ray, the gap to the nearest slot but the goal's
     (torchpark.SlotGaps; with ``position``), the slots its teacher keeps off;
-    ``arc_features``: and, per steering bin and gear, the share of a short held arc it
-    drives before crossing such a slot (torchpark.SlotArcs; with ``position`` and
-    ``steer_bins``);
     ``steer_bins``: 0, or the bins of the student's steering
     (``ModelConfig.steer_bins``, :class:`trainers.heads.BinnedGearHead`);
     ``target_lateral`` / ``target_heading``: the planner's
@@ -220,7 +215,6 @@ class DistillConfig:
     gear_features: bool = False
     scan_memory: int = 0
     slot_features: bool = False
-    arc_features: bool = False
     steer_bins: int = 0
     target_lateral: float | None = None
     target_heading: float | None = None
@@ -273,9 +267,6 @@ class DistillConfig:
         require(not self.slot_features or self.position, "DistillConfig.slot_features",
                 "False without position (the slots are found from the car's position)",
                 self.slot_features)
-        require(not self.arc_features or (self.position and self.steer_bins > 0),
-                "DistillConfig.arc_features", "False without position and steer_bins (the "
-                "arcs are the bins', found from the car's position)", self.arc_features)
         require(self.steer_bins == 0 or (3 <= self.steer_bins <= 255
                                          and self.steer_bins % 2 == 1),
                 "DistillConfig.steer_bins", "0, or an odd int in [3, 255]", self.steer_bins)
@@ -433,7 +424,7 @@ def student_config(teacher: str, cfg: DistillConfig) -> TrainConfig:
             action_exponents=[cfg.speed_exponent, cfg.steer_exponent], gear_head=True,
             goal_features=True, clearance_features=cfg.clearance_features,
             gear_features=cfg.gear_features, scan_memory=cfg.scan_memory,
-            slot_features=cfg.slot_features, arc_features=cfg.arc_features),
+            slot_features=cfg.slot_features),
         model=dataclasses.replace(tcfg.model, hidden=hidden, steer_bins=cfg.steer_bins),
         logger=LoggerConfig(exp_name="distilled"), seed=cfg.seed)
     return student
@@ -775,7 +766,6 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
                                    (f"a memory of {cfg.scan_memory} scans",
                                     cfg.scan_memory > 0),
                                    ("slot features", cfg.slot_features),
-                                   ("arc features", cfg.arc_features),
                                    ("binned steering", cfg.steer_bins > 0),
                                    ("position", cfg.position)) if on]
     made_of = f" ({', '.join(parts)})" if parts else ""

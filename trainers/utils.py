@@ -36,11 +36,9 @@ from torchpark import (
     ParkingEnv,
     PowerActionMap,
     ScanMemory,
-    SlotArcs,
     SlotGaps,
 )
 from torchpark.aids.step import BRAKED
-from torchpark.transforms.actions import power_map
 from torchpark.transforms.sync_free import SyncFreeEnv, SyncFreeRewardScaling, SyncFreeVecNorm
 from trainers.config import ModelConfig, TrainConfig, env_configs
 from trainers.heads import BinnedGearHead
@@ -224,13 +222,6 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
         source = ["observation_policy"]
     if agent.slot_features:
         transforms.append(SlotGaps(base.config, source[0], "position", "observation_policy"))
-        source = ["observation_policy"]
-    if agent.arc_features:
-        centres = torch.linspace(-1.0, 1.0, cfg.model.steer_bins)
-        steer = power_map(torch.stack((torch.zeros_like(centres), centres), -1),
-                          high.cpu(), torch.tensor(agent.action_exponents))[:, 1]
-        transforms.append(SlotArcs(base.config, steer, in_key=source[0],
-                                   out_key="observation_policy"))
         source = ["observation_policy"]
     if agent.aids.observe_position:
         transforms.append(CatTensors([*source, "position"], "observation_policy",

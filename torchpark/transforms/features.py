@@ -1,8 +1,7 @@
 """Policy features computed from the paper's observation: the goal in the vehicle's frame,
 the clearance left along each LIDAR ray, the gear the car moves in with its travel in it
-(from the observed speed over the episode), a memory of the last scans, the slots' lines
-as rays would see them, and how far each held steering arc runs before it crosses them (from
-the observation, the car's position and the lot's map).
+(from the observed speed over the episode), a memory of the last scans, and the slots' lines
+as rays would see them (from the observation, the car's position and the lot's map).
 
 The paper's observation gives the goal offset in the world frame; a policy then has to learn a
 rotation by the heading before it can steer. These features hand it the rotated offset, and a
@@ -24,12 +23,12 @@ from torch import Tensor
 from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
-from torchpark.config import ParkingConfig, VehicleConfig, is_number, require
-from torchpark.sim.geometry import OrientedBoxes, oriented_boxes, separation
+from torchpark.config import ParkingConfig, is_number, require
+from torchpark.sim.geometry import OrientedBoxes, oriented_boxes
 from torchpark.sim.layout import build_layout
 from torchpark.sim.lidar import lidar_scan, line_rotation, ray_angles
 from torchpark.sim.observation import NAV_DIM, SPEED
-from torchpark.sim.vehicle import bicycle_step, gear_travel, vehicle_obb
+from torchpark.sim.vehicle import gear_travel
 
 GOAL_FEATURES = 7  # ex, ey, cos and sin of the heading error, three asinh scales
 
@@ -358,22 +357,6 @@ class ScanMemory(Transform):
         return appended_spec(observation_spec, self.in_keys[0], self.out_keys[0], self.n_rays)
 
 
-def observation_and_position(tensordict, keys: list[str], reader: str
-                             ) -> tuple[Tensor, Tensor]:
-    """What a feature placed by the lot's map reads from ``tensordict``: the input at
-    ``keys[0]`` (which starts with the paper's observation) and the rear axle's position at
-    ``keys[1]``; an error naming ``reader`` and what is missing."""
-    source = tensordict.get(keys[0])
-    if source.shape[-1] < NAV_DIM:
-        raise ValueError(f"{keys[0]} must have >= {NAV_DIM} features, got shape "
-                         f"{tuple(source.shape)}")
-    position = tensordict.get(keys[1], None)
-    if position is None:
-        raise KeyError(f"{reader} reads the car's position from {keys[1]!r}: make the env "
-                       "with AidsConfig(observe_position=True)")
-    return source, position
-
-
 def slot_gaps(observation: Tensor, position: Tensor, slots: OrientedBoxes, goals: Tensor,
               rotation: Tensor, edge: Tensor, offset: float, max_range: float,
               precision: float = 0.1) -> Tensor:
@@ -436,7 +419,14 @@ class SlotGaps(Transform):
                                                        config.vehicle.width))
 
     def _call(self, next_tensordict):
-        source, position = observation_and_position(next_tensordict, self.in_keys, "SlotGaps")
+        source = next_tensordict.get(self.in_keys[0])
+        if source.shape[-1] < NAV_DIM:
+            raise ValueError(f"{self.in_keys[0]} must have >= {NAV_DIM} features, got shape "
+                             f"{tuple(source.shape)}")
+        position = next_tensordict.get(self.in_keys[1], None)
+        if position is None:
+            raise KeyError(f"SlotGaps reads the car's position from {self.in_keys[1]!r}: "
+                           "make the env with AidsConfig(observe_position=True)")
         slots = OrientedBoxes(*(getattr(self, f"slot_{name}") for name in OrientedBoxes._fields))
         flat = source.reshape(-1, source.shape[-1])
         gaps = slot_gaps(flat, position.reshape(-1, 2).to(source.dtype), slots, self.goals,
@@ -452,93 +442,3 @@ class SlotGaps(Transform):
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         return appended_spec(observation_spec, self.in_keys[0], self.out_keys[0], self.n_rays)
-
-
-def arc_reach(pose: Tensor, blocked: OrientedBoxes, free: Tensor, steer: Tensor, speed: float,
-              steps: int, vehicle: VehicleConfig) -> Tensor:
-    """How far each held steering arc runs before the car's box touches a box it must keep
-    off: [N, 2, B] the share of ``steps`` steps of dt (0 .. 1, 1: clear to the end) that the
-    car, from rear-axle poses ``pose`` [N, 3] (m, rad), driving ``speed`` m/s forwards (0)
-    or backwards (1) with its wheels held at each of ``steer`` (B,) rad, covers before the
-    first pose at which its box touches a box of ``blocked`` (M,) where ``free`` [N, M] is 0.
-    """
-    n, b = pose.shape[0], steer.shape[0]
-    v = torch.tensor([speed, -speed], dtype=pose.dtype, device=pose.device)
-    v = v[None, :, None].expand(n, 2, b)
-    delta = steer.to(pose.dtype)[None, None, :].expand(n, 2, b)
-    at = pose[:, None, None, :].expand(n, 2, b, 3)
-    clear = torch.ones(n, 2, b, dtype=torch.bool, device=pose.device)
-    run = torch.zeros(n, 2, b, dtype=pose.dtype, device=pose.device)
-    boxes = OrientedBoxes(*(t[None, None, None] for t in blocked))  # [1, 1, 1, M]
-    lifted = free[:, None, None, :] * _KEPT_OFF
-    for _ in range(steps):
-        at = bicycle_step(at, v, delta, vehicle)
-        ego = OrientedBoxes(*(t[..., None] for t in vehicle_obb(at, vehicle)))
-        clear = clear & ((separation(ego, boxes) + lifted).amin(-1) > 0.0)
-        run = run + clear.to(pose.dtype)
-    return run / steps
-
-
-_KEPT_OFF = 1e4  # m added to a free box's gap: far more than any overlap depth
-
-
-class SlotArcs(Transform):
-    """Writes ``out_key`` = cat(``in_key``, :func:`arc_reach`): per steering bin and gear,
-    the share of a short held arc (``speed`` m/s for ``steps`` steps of dt) that the car
-    drives before its box crosses a slot but the goal's or a wall. The student chooses its
-    steering among bins; a bin whose arc runs into a slot is one its teacher, keeping off
-    the slots, does not take. Computed as :class:`SlotGaps` is: from the observation
-    (``in_key``, which starts with the paper's: the heading, and the goal, which picks the
-    goal's slot), the rear axle's position (``position_key``) and the lot's map.
-
-    Args:
-        config: the env's config (its lot, its vehicle).
-        steer: (B,) the bins' steering angles, rad.
-        speed: the arcs' speed, m/s.
-        steps: the arcs' length in steps of dt.
-        in_key: the policy input that starts with the paper's observation.
-        position_key: the rear axle's (x, y) in the lot, m.
-        out_key: where the [..., in_dim + 2 B] input goes (may be ``in_key``).
-    """
-
-    def __init__(self, config: ParkingConfig, steer: Tensor, speed: float = 1.5,
-                 steps: int = 10, in_key: str = "observation", position_key: str = "position",
-                 out_key: str = "observation_policy") -> None:
-        require(is_number(speed) and 0.0 < speed <= config.vehicle.max_speed, "speed",
-                f"in (0, {config.vehicle.max_speed:g}] m/s", speed)
-        require(isinstance(steps, int) and not isinstance(steps, bool) and 1 <= steps <= 100,
-                "steps", "an int in [1, 100]", steps)
-        require(steer.ndim == 1 and steer.numel() >= 1
-                and bool((steer.abs() <= config.vehicle.max_steer).all()), "steer",
-                f"a (B,) tensor in [-{config.vehicle.max_steer:g}, "
-                f"{config.vehicle.max_steer:g}] rad", steer)
-        super().__init__(in_keys=[in_key, position_key], out_keys=[out_key])
-        self.vehicle, self.speed, self.steps = config.vehicle, float(speed), steps
-        layout = build_layout(config.lot, config.vehicle)
-        for name, value in zip(OrientedBoxes._fields, layout.slots_and_walls, strict=True):
-            self.register_buffer(f"box_{name}", value.contiguous())
-        self.register_buffer("goals", layout.goal_poses[:, :2].contiguous())
-        self.register_buffer("steer", steer.detach().to(torch.float32).clone())
-
-    def _call(self, next_tensordict):
-        source, position = observation_and_position(next_tensordict, self.in_keys, "SlotArcs")
-        flat = source.reshape(-1, source.shape[-1])
-        at = position.reshape(-1, 2).to(flat.dtype)
-        dx, dy, c, s = flat[:, :4].unbind(-1)
-        goal_slot = torch.cdist(at + torch.stack((dx, dy), -1), self.goals).argmin(-1)
-        blocked = OrientedBoxes(*(getattr(self, f"box_{name}") for name in OrientedBoxes._fields))
-        free = torch.nn.functional.one_hot(goal_slot, blocked.cx.shape[0]).to(flat.dtype)
-        pose = torch.cat((at, torch.atan2(s, c)[:, None]), -1)
-        reach = arc_reach(pose, blocked, free, self.steer, self.speed, self.steps, self.vehicle)
-        next_tensordict.set(self.out_keys[0], torch.cat(
-            [source, reach.reshape(*source.shape[:-1], -1).to(source.dtype)], dim=-1))
-        return next_tensordict
-
-    forward = _call
-
-    def _reset(self, tensordict, tensordict_reset):
-        return self._call(tensordict_reset)
-
-    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        return appended_spec(observation_spec, self.in_keys[0], self.out_keys[0],
-                             2 * self.steer.shape[0])
