@@ -70,11 +70,11 @@ def test_compute_reward_is_the_envs_reward_on_real_transitions():
     goal_env = env.unwrapped
     batched = goal_env.compute_reward(achieved, desired, infos)  # as HER calls it
     assert batched.shape == (len(rows),) and batched.dtype == np.float32
-    # The same float32 functions on the same numbers; the cube root may round by an ulp
-    # where torch vectorises it.
-    np.testing.assert_allclose(batched, rewards, rtol=1e-6, atol=1e-6)
+    # The same float32 functions on the same numbers (the cube root correctly rounded, the
+    # same one batched or not): equal to the last bit.
+    np.testing.assert_array_equal(batched, rewards)
     one = [goal_env.compute_reward(a, d, i) for a, d, i, _ in rows]  # one goal at a time
-    np.testing.assert_allclose(one, rewards, rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(np.array(one, np.float32), rewards)
     ended = goal_env.compute_terminated(achieved, desired, infos)
     np.testing.assert_array_equal(ended, [i["collision"] or i["success"] for i in infos])
 
@@ -91,6 +91,35 @@ def test_compute_reward_relabels_and_names_what_it_needs():
         env.compute_reward(here[None], here[None], [{}])  # HER without its infos
     with pytest.raises(ValueError, match=r"shape \(\.\.\., 4\)"):
         env.compute_reward(here[:3], here[:3], info)
+
+
+@pytest.mark.parametrize("flag", ["False", 2, float("nan"), None, np.array([0.0])])
+def test_a_collision_flag_is_a_bool_or_refused(flag):
+    env = gymnasium.make(GOAL_ENV_ID, seed=0).unwrapped
+    obs, info = env.reset(seed=0)
+    here = obs["achieved_goal"]
+    for compute in (env.compute_reward, env.compute_terminated, env.compute_truncated):
+        with pytest.raises(ValueError, match=r"info\['collision'\] must be a bool"):
+            compute(here, here, {**info, "collision": flag})
+        with pytest.raises(ValueError, match=r"info\['collision'\] must be a bool"):
+            compute(here[None], here[None], [{"collision": flag}])
+    assert env.compute_reward(here, here, {"collision": np.bool_(True)}) == pytest.approx(801)
+
+
+def test_every_compute_checks_the_goals_shapes():
+    env = gymnasium.make(GOAL_ENV_ID, seed=0).unwrapped
+    obs, info = env.reset(seed=0)
+    here = obs["achieved_goal"]
+    for compute in (env.compute_reward, env.compute_terminated, env.compute_truncated):
+        with pytest.raises(ValueError, match=r"shape \(\.\.\., 4\)"):
+            compute(np.zeros(5), np.zeros(5), info)  # a (5,) goal
+        with pytest.raises(ValueError, match=r"shape \(\.\.\., 4\)"):
+            compute(np.zeros((3, 4)), np.zeros((2, 4)), [info] * 3)
+        with pytest.raises(ValueError, match="real array"):
+            compute(here.astype(np.complex64), here, info)
+    ended = env.compute_terminated(np.stack([here] * 3), np.stack([here] * 3), [info] * 3)
+    assert ended.tolist() == [True] * 3  # C = 0 < the threshold: success
+    assert env.compute_truncated(here, here, info).shape == ()
 
 
 def test_her_replay_buffer_samples_relabelled_goals_with_their_rewards():

@@ -13,7 +13,9 @@ A goal is the rear axle's pose and speed, ``(x m, y m, psi rad, v m/s)`` (``GOAL
 ``achieved_goal`` the car's, ``desired_goal`` the goal slot's pose at rest. Kept as the
 simulator holds them (psi in (-pi, pi], not cos/sin), so that ``compute_reward`` computes
 the paper's cost and reward with the simulator's own functions on the same float32 numbers:
-it equals the env's reward on real transitions (``tests/test_goal_env.py``). The
+it equals the env's reward on real transitions to the last bit, batched or one goal at a
+time (the cube root is correctly rounded, :func:`~torchpark.sim.reward.cube_root`;
+``tests/test_goal_env.py``). The
 ``observation`` is what does not depend on the goal: ``[x, y, cos psi, sin psi, v,
 lidar_0 ... lidar_15]`` (the LIDAR / max_range, as in the paper's observation).
 
@@ -83,6 +85,16 @@ def goal_reward(achieved: Tensor, desired: Tensor, collision: Tensor, cfg: Parki
     return parking_reward(cost, collision, is_success(cost, threshold), cfg.reward)
 
 
+def _flag(value: Any) -> np.ndarray:
+    """One ``info["collision"]``: a bool, or a bool array (a vector env's infos); anything
+    else (a string, an int, a float, NaN) is no flag."""
+    flags = np.asarray(value)
+    if flags.dtype != np.bool_:
+        raise ValueError(f"info['collision'] must be a bool (or a bool array), got "
+                         f"{value!r} ({type(value).__name__})")
+    return flags
+
+
 def _collisions(info: Any, shape: tuple[int, ...]) -> np.ndarray:
     """``info["collision"]`` of one info dict, or of each of a sequence of them (SB3's HER
     buffer passes one per relabelled transition), as a bool array of ``shape``."""
@@ -92,11 +104,14 @@ def _collisions(info: Any, shape: tuple[int, ...]) -> np.ndarray:
     if isinstance(info, Mapping):
         if "collision" not in info:
             raise ValueError(missing)
-        flags = np.asarray(info["collision"], dtype=bool)
-    elif isinstance(info, (Sequence, np.ndarray)):
+        flags = _flag(info["collision"])
+    elif isinstance(info, (Sequence, np.ndarray)) and not isinstance(info, (str, bytes)):
         if not all(isinstance(i, Mapping) and "collision" in i for i in info):
             raise ValueError(missing)
-        flags = np.fromiter((bool(i["collision"]) for i in info), dtype=bool, count=len(info))
+        each = [_flag(i["collision"]) for i in info]
+        if any(f.shape != () for f in each):
+            raise ValueError("info['collision'] of each info in a sequence must be one bool")
+        flags = np.array([bool(f) for f in each], dtype=bool).reshape(len(each))
     else:
         raise ValueError(f"info must be an info dict or a sequence of them, got "
                          f"{type(info).__name__}")
@@ -105,6 +120,24 @@ def _collisions(info: Any, shape: tuple[int, ...]) -> np.ndarray:
     except ValueError:
         raise ValueError(f"info's collision flags have shape {flags.shape}, the goals' batch "
                          f"{shape}") from None
+
+
+def _goals(achieved_goal: Any, desired_goal: Any) -> tuple[Tensor, Tensor]:
+    """Both goals as float32 tensors of one shape (..., 4); ValueError naming them
+    otherwise (a wrong shape, a complex, string or object array)."""
+    goals = []
+    for name, goal in (("achieved_goal", achieved_goal), ("desired_goal", desired_goal)):
+        array = np.asarray(goal)
+        if array.dtype.kind not in "fiu":
+            raise ValueError(f"{name} must be a real array of shape (..., 4) = {GOAL_FIELDS}, "
+                             f"got dtype {array.dtype}")
+        goals.append(torch.as_tensor(array.astype(np.float32)))
+    achieved, desired = goals
+    if achieved.shape[-1:] != (4,) or desired.shape != achieved.shape:
+        raise ValueError(f"achieved_goal and desired_goal must both have shape (..., 4) "
+                         f"= {GOAL_FIELDS}, got {tuple(achieved.shape)} and "
+                         f"{tuple(desired.shape)}")
+    return achieved, desired
 
 
 class ParkingGoalEnv(ParkingGymEnv):
@@ -137,13 +170,8 @@ class ParkingGoalEnv(ParkingGymEnv):
         """Table 1's reward for reaching ``achieved_goal`` when ``desired_goal`` was asked,
         goals (..., 4) = (x, y, psi, v); ``info``: the step's info dict (or one per goal),
         whose ``collision`` adds the penalty. float32 array of the goals' batch shape (0-d for
-        one goal): the env's own reward for the env's own goals."""
-        achieved = torch.as_tensor(np.asarray(achieved_goal, np.float32))
-        desired = torch.as_tensor(np.asarray(desired_goal, np.float32))
-        if achieved.shape[-1:] != (4,) or desired.shape != achieved.shape:
-            raise ValueError(f"achieved_goal and desired_goal must both have shape (..., 4) "
-                             f"= {GOAL_FIELDS}, got {tuple(achieved.shape)} and "
-                             f"{tuple(desired.shape)}")
+        one goal): the env's own reward for the env's own goals, bit for bit."""
+        achieved, desired = _goals(achieved_goal, desired_goal)
         collision = torch.from_numpy(_collisions(info, tuple(achieved.shape[:-1])).copy())
         reward = goal_reward(achieved, desired, collision, self.env.config,
                              self.env.success_threshold)
@@ -151,9 +179,18 @@ class ParkingGoalEnv(ParkingGymEnv):
 
     def compute_terminated(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
                            info: Mapping[str, Any] | Sequence[Mapping[str, Any]]) -> np.ndarray:
-        """Whether the episode ends: success (C < the threshold) or a collision."""
-        achieved = torch.as_tensor(np.asarray(achieved_goal, np.float32))
-        desired = torch.as_tensor(np.asarray(desired_goal, np.float32))
+        """Whether the episode ends: success (C < the threshold) or a collision; bool array of
+        the goals' batch shape, the goals and infos checked as :meth:`compute_reward` checks
+        them."""
+        achieved, desired = _goals(achieved_goal, desired_goal)
         collision = _collisions(info, tuple(achieved.shape[:-1]))
         cost = goal_cost(achieved, desired, self.env.config)
         return is_success(cost, self.env.success_threshold).numpy() | collision
+
+    def compute_truncated(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
+                          info: Mapping[str, Any] | Sequence[Mapping[str, Any]]) -> np.ndarray:
+        """Whether the episode is cut short: never by the goals (the step limit is Gymnasium's
+        ``TimeLimit``'s), so False, a bool array of the goals' batch shape, the goals and
+        infos checked as :meth:`compute_reward` checks them."""
+        achieved, _ = _goals(achieved_goal, desired_goal)
+        return np.zeros_like(_collisions(info, tuple(achieved.shape[:-1])))
