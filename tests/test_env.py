@@ -385,6 +385,33 @@ def test_constructor_flags_and_the_threshold_are_checked_by_type():
         env.success_threshold = True
 
 
+def test_what_the_step_was_built_from_is_fixed_and_compile_kwargs_are_named():
+    env = ParkingEnv(2, seed=0)
+    for name, value in (("config", ParkingConfig(max_steps=5)), ("aids", AidsConfig()),
+                        ("num_envs", 3), ("layout", None), ("reset_in_step", True),
+                        ("compiled", True)):
+        with pytest.raises(AttributeError, match=f"ParkingEnv.{name} is fixed at construction"):
+            setattr(env, name, value)
+    assert env.config == ParkingConfig() and env.aids is None and env.num_envs == 2
+    env.validate_actions = False  # read at every step: settable, checked
+    with pytest.raises(TypeError, match="validate_actions must be a bool"):
+        env.validate_actions = "no"
+    for kwargs, match in (({"options": "abc"}, r"compile_kwargs\['options'\] must be a dict"),
+                          ({"dynamic": "maybe"}, r"compile_kwargs\['dynamic'\] must be a bool"),
+                          ({"mode": "fast"}, r"compile_kwargs\['mode'\] must be one of"),
+                          ({"fullgraph": 1}, r"compile_kwargs\['fullgraph'\] must be a bool"),
+                          ({"backend": 3}, r"compile_kwargs\['backend'\] must be"),
+                          ({"mode": "default", "options": {}}, "'mode' or 'options', not both"),
+                          ({"model": None}, r"compile_kwargs may hold \['fullgraph'")):
+        with pytest.raises((TypeError, ValueError), match=match):
+            ParkingEnv(2, compile_step=True, compile_kwargs=kwargs)
+    with pytest.raises(ValueError, match="one CPU device"):
+        ParkingEnv(2, device="cpu:1")
+    on_zero = ParkingEnv(2, seed=0, device="cpu:0")  # the CPU's one device: "cpu"
+    on_zero.reset()
+    assert on_zero.device == torch.device("cpu") and on_zero.rollout(2).shape == (2, 2)
+
+
 def test_an_action_on_another_device_is_refused_by_name():
     env = ParkingEnv(2, seed=0)
     env.reset()
@@ -453,6 +480,12 @@ def test_the_success_threshold_is_set_from_a_number_or_a_tensor():
     assert env.world.success_threshold.item() == pytest.approx(1e-3)
     with pytest.raises(ValueError, match="0-d float tensor"):
         env.set_success_threshold(torch.tensor([0.1, 0.2]))
+    for bad in (torch.tensor(float("nan")), torch.tensor(-1.0), torch.tensor(float("inf"))):
+        with pytest.raises(ValueError, match="success_threshold must be a finite float > 0"):
+            env.set_success_threshold(bad)
+    with pytest.raises(ValueError, match="does not require grad"):
+        env.set_success_threshold(torch.tensor(0.1, requires_grad=True))
+    assert env.success_threshold == pytest.approx(1e-3)  # none of them was taken
     with pytest.raises(TypeError, match="aids must be an AidsConfig"):
         ParkingEnv(2, aids={"action_repeat": 2})
 

@@ -209,6 +209,49 @@ def test_bad_construction_is_a_clear_error():
         env.reset(options={"density": 0.3})
 
 
+def test_hostile_construction_and_actions_are_named():
+    with pytest.raises(TypeError, match=r"config must be a ParkingConfig or None, got \{\}"):
+        gymnasium.make(ENV_ID, config={})
+    env = ParkingGymEnv(seed=0)
+    env.reset(seed=0)
+    assert not env.action_space.contains(np.array([0.5, 0.1j], np.complex64))
+    for bad in (np.array([0.5, 0.1j]), ["0.5", "0.1"], None):
+        with pytest.raises(ValueError, match="action must be"):  # not taken, as contains says
+            env.step(bad)
+    with pytest.raises(ValueError, match="device is 'cpu:1', but torch has one CPU device"):
+        gymnasium.make(ENV_ID, device="cpu:1")
+
+
+def test_occupancy_set_on_the_gymnasium_envs_reaches_the_lots():
+    """``env.unwrapped.occupancy = p`` (a curriculum's way) is the batched env's occupancy,
+    not a new attribute nobody reads."""
+    single, vector = ParkingGymEnv(seed=0), ParkingVectorEnv(3, seed=0)
+    for env in (single, vector):
+        env.occupancy = 0.9
+        assert env.env.occupancy == 0.9
+        _, info = env.reset()
+        assert np.all(info["occupancy"] == np.float32(0.9))
+        with pytest.raises(ValueError, match="occupancy"):
+            env.occupancy = -0.1
+
+
+def test_the_vector_env_resets_the_rows_of_a_reset_mask():
+    """Gymnasium's partial reset (``options={"reset_mask": mask}``): new lots in the masked
+    rows, the others as they were, the infos' masks on the reset rows."""
+    env = ParkingVectorEnv(4, seed=1, occupancy=0.5)
+    env.reset()
+    obs, _, _, _, _ = env.step(np.full((4, 2), 0.3, np.float32))
+    mask = np.array([False, True, False, True])
+    again, info = env.reset(options={"reset_mask": mask, "occupancy": 0.9})
+    np.testing.assert_array_equal(again[~mask], obs[~mask])
+    assert not np.array_equal(again[mask], obs[mask])
+    np.testing.assert_array_equal(info["_occupancy"], mask)
+    np.testing.assert_array_equal(info["occupancy"][mask], np.float32(0.9))
+    for bad in (mask.astype(int), np.zeros(4, bool), mask[:3]):
+        with pytest.raises(ValueError, match=r"reset_mask"):
+            env.reset(options={"reset_mask": bad})
+
+
 def test_registration_is_idempotent():
     torchpark.register()
     assert ENV_ID in gymnasium.registry

@@ -75,7 +75,8 @@ def assert_same_rollout(ours: list, theirs: list) -> None:
         for x, y in ((a, b), (a_, b_)):
             assert set(x.keys(True, True)) == set(y.keys(True, True)), step
             for key in x.keys(True, True):
-                assert torch.equal(x[key], y[key]), (step, key)
+                torch.testing.assert_close(x[key], y[key], rtol=0, atol=0, equal_nan=True,
+                                           msg=f"step {step}, {key}")
 
 
 @pytest.mark.parametrize("aids", [None, AIDED], ids=["paper", "aided"])
@@ -90,6 +91,41 @@ def test_the_rollout_is_the_host_paths(aids, blocks_ahead):
     assert sum(int(td["next", "done"].sum()) for td, _ in theirs) > 6 * 48  # many ends
     assert int(ring._counters.block) > 2 * ring._blocks  # the ring went round
     assert_same_rollout(ours, theirs)
+
+
+def rollout_changed(env: ParkingEnv, steps: int, seed: int, change: Callable[[ParkingEnv], None],
+                    at: int, nan_rows: tuple[int, ...] = ()) -> list:
+    """:func:`rollout` with ``change(env)`` before step ``at`` (what a curriculum does
+    between two steps) and NaN actions in ``nan_rows`` at every third step."""
+    td, pairs = env.reset(), []
+    for k, action in enumerate(random_actions(env.num_envs, steps, seed)):
+        if k == at:
+            change(env)
+        if k % 3 == 0:
+            action[list(nan_rows)] = float("nan")
+        td, td_ = env.step_and_maybe_reset(td.set("action", action))
+        pairs.append((td.clone(), td_.clone()))
+        td = td_
+    return pairs
+
+
+def _curriculum(env: ParkingEnv) -> None:
+    env.occupancy = 0.6
+    env.set_success_threshold(1e-3)  # with near-goal starts, a discard too
+
+
+@pytest.mark.parametrize("aids", [None, AIDED], ids=["paper", "aided"])
+def test_a_curriculum_mid_run_keeps_the_host_paths_rollout(aids):
+    """The occupancy (and the threshold) changed between two steps, as OccupancyCurriculum
+    does: both paths discard what they drew ahead and draw the same lots next; NaN actions
+    (validate_actions=False) leave their rows standing on both."""
+    envs = [ParkingEnv(40, seed=5, config=BUSY, aids=aids, reset_in_step=ring, blocks_ahead=3,
+                       validate_actions=False) for ring in (False, True)]
+    theirs, ours = (rollout_changed(env, 40, 2, _curriculum, at=17, nan_rows=(3, 7))
+                    for env in envs)
+    assert_same_rollout(ours, theirs)
+    assert envs[1].occupancy == 0.6 and torch.isfinite(envs[1].state.pose).all()
+    assert (envs[0].state.occupancy[envs[0].state.steps < 3] == 0.6).all()  # new lots at 0.6
 
 
 def test_a_partial_reset_is_the_host_paths():
@@ -217,6 +253,16 @@ def test_a_snapshot_continues_exactly_and_the_other_path_refuses_it():
     other = ParkingEnv(24, seed=0, config=BUSY, reset_in_step=True, blocks_ahead=3)
     with pytest.raises(ValueError, match=r"built otherwise: ring_blocks=3 in the snapshot"):
         other.restore(saved)
+    # The occupancy changed after a restore: both discard alike (the ring's generator states
+    # are in the snapshot).
+    again.restore(env.snapshot())
+    for each in (env, again):
+        each.occupancy = 0.2
+    for action in random_actions(24, 12, 3):
+        a, a_ = env.step_and_maybe_reset(td.clone().set("action", action))
+        b, b_ = again.step_and_maybe_reset(td.clone().set("action", action))
+        assert_same_rollout([(b, b_)], [(a, a_)])
+        td = a_
     bad = {**saved, "ring_counters": torch.tensor([5, 0, 0])}  # a block never drawn
     with pytest.raises(ValueError, match=r"snapshot\['ring_counters'\]"):
         again.restore(bad)

@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.evaluation import evaluate_policy
-from stable_baselines3.common.vec_env import VecCheckNan, VecEnv, VecMonitor
+from stable_baselines3.common.vec_env import DummyVecEnv, VecCheckNan, VecEnv, VecMonitor
 
-from torchpark.gym_env import ParkingVectorEnv
+from torchpark.gym_env import ParkingGymEnv, ParkingVectorEnv
 from torchpark.sb3 import ParkingVecEnv
 
 
@@ -67,15 +68,90 @@ def test_one_seed_gives_the_batch_the_same_lots_again():
 def test_the_batch_answers_for_every_env():
     env = ParkingVecEnv(4, seed=0)
     assert env.get_attr("num_envs") == [4] * 4 and env.get_attr("num_envs", [1]) == [4]
+    assert env.has_attr("occupancy") and not env.has_attr("dummy")
     assert env.env_is_wrapped(object) == [False] * 4
     with pytest.warns(UserWarning, match="without a render_mode"):  # the batch's own answer
         assert env.env_method("render") == [None] * 4
-    with pytest.raises(ValueError, match="sets the batch's attribute: pass no indices"):
+    with pytest.raises(ValueError, match="acts on the batch's 4 lots at once: pass no indices"):
         env.set_attr("render_envs", 2, indices=[0])
     env.set_attr("render_envs", 2)
     assert env.venv.render_envs == 2
+    with pytest.raises(ValueError, match=r"render_envs must be an int in \[1, 4\]"):
+        env.set_attr("render_envs", 0)
     with pytest.raises(RuntimeError, match="step_async"):
         env.step_wait()
+
+
+def _dummy(n: int, **kwargs) -> DummyVecEnv:
+    """SB3's reference: n single envs, each one lot."""
+    return DummyVecEnv([lambda i=i: ParkingGymEnv(seed=i, **kwargs) for i in range(n)])
+
+
+def test_env_method_reset_redraws_only_the_given_rows_as_dummyvecenv_does():
+    """Each named row gets a new lot and returns its (observation, info) as a single env's
+    reset does; the other rows go on from where they were."""
+    env, reference = ParkingVecEnv(4, seed=0, occupancy=0.5), _dummy(4, occupancy=0.5)
+    env.reset()
+    reference.reset()
+    act = actions(4, 3)
+    for action in act:
+        env.step(action)
+        reference.step(action)
+    before = env.venv.env.state
+    got, expected = env.env_method("reset", indices=[1, 3]), reference.env_method(
+        "reset", indices=[1, 3])
+    assert len(got) == len(expected) == 2
+    for (obs, info), (ref_obs, ref_info) in zip(got, expected, strict=True):
+        assert obs.shape == ref_obs.shape and obs.dtype == ref_obs.dtype
+        assert info.keys() == ref_info.keys()
+        assert all(type(info[k]) is type(ref_info[k]) for k in info)
+    after = env.venv.env.state
+    kept = torch.tensor([True, False, True, False])
+    assert torch.equal(after.pose[kept], before.pose[kept])
+    assert torch.equal(after.steps[kept], before.steps[kept]) and (after.steps[~kept] == 0).all()
+    np.testing.assert_array_equal(got[0][0], env.venv._td["observation"][1].numpy())
+    obs, *_ = env.step(act[0])  # the batch steps on from the partial reset
+    assert obs.shape == (4, 23)
+    with pytest.raises(IndexError, match=r"indices must be ints in \[0, 4\)"):
+        env.env_method("reset", indices=[4])
+
+
+def test_a_curriculum_written_the_sb3_way_reaches_the_lots():
+    """set_attr("occupancy", p) and set_options({"occupancy": p}), as SB3 users write a
+    curriculum: the next lots are drawn at p; what the batch cannot take is refused."""
+    env = ParkingVecEnv(6, seed=0)
+    env.set_attr("occupancy", 0.9)
+    assert env.get_attr("occupancy") == [0.9] * 6 and env.venv.env.occupancy == 0.9
+    env.reset()
+    assert (env.venv.env.state.occupancy == 0.9).all()
+    env.set_options([{"occupancy": 0.2}] * 6)  # one dict per env, all equal
+    env.reset()
+    assert (env.venv.env.state.occupancy == 0.2).all()
+    with pytest.raises(ValueError, match="the same for every env"):
+        env.set_options([{"occupancy": 0.1}] + [{"occupancy": 0.5}] * 5)
+    with pytest.raises(ValueError, match=r"list of 6 dicts"):
+        env.set_options([{}] * 2)
+    with pytest.raises(ValueError, match="only 'occupancy'"):
+        env.set_options({"speed": 1})
+    with pytest.raises(AttributeError, match=r"set_attr can set \['occupancy', 'render_envs'\]"):
+        env.set_attr("ocupancy", 0.9)  # a typo is not a new attribute nobody reads
+    with pytest.raises(ValueError, match="occupancy must be"):
+        env.set_attr("occupancy", 1.5)
+    with pytest.raises(ValueError, match="acts on the batch's 6 lots at once"):
+        env.env_method("close", indices=[0])
+
+
+def test_step_none_names_the_actions_and_seed_draws_one():
+    env = ParkingVecEnv(2, seed=0)
+    env.reset()
+    with pytest.raises(ValueError, match=r"actions must be an array of shape \(2, 2\)"):
+        env.step(None)
+    with pytest.raises(ValueError, match="real array"):
+        env.step(np.ones((2, 2), np.complex64))
+    seeds = env.seed()
+    assert len(seeds) == 2 and seeds[0] == seeds[1] and isinstance(seeds[0], int)
+    with pytest.raises(ValueError, match="seed must be an int"):
+        env.seed(-1)
 
 
 def test_sb3s_wrappers_and_ppo_run_on_it():

@@ -133,10 +133,70 @@ def check_device(device: object, name: str = "device") -> None:
     if parsed is None or parsed.type not in ("cpu", "cuda"):
         raise ValueError(f"{name} must be a torch device such as 'cpu' or 'cuda:0', got "
                          f"{device!r}")
+    if parsed.type == "cpu" and (parsed.index or 0) != 0:
+        raise ValueError(f"{name} is {device!r}, but torch has one CPU device: 'cpu'")
     count = torch.cuda.device_count() if torch.cuda.is_available() else 0
     if parsed.type == "cuda" and (parsed.index or 0) >= count:
         raise ValueError(f"{name} is {device!r}, but torch sees {count or 'no'} CUDA "
                          f"device(s) here")
+
+
+# torch.compile's keywords that an env may be given, with what each takes (torch's own
+# signature); the env needs its step's graphs whole, so the others are not passed on.
+_COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+
+
+def check_compile_kwargs(kwargs: object) -> dict:
+    """``compile_kwargs`` as a dict for ``torch.compile``, or an error naming the key that
+    does not fit: ``fullgraph``, ``disable`` (bools), ``dynamic`` (a bool or None),
+    ``backend`` (a name or a callable), ``mode`` (one of torch's modes or None) and
+    ``options`` (a dict of inductor options by name, or None)."""
+    if kwargs is None:
+        return {}
+    if not isinstance(kwargs, dict):
+        raise TypeError(f"compile_kwargs must be a dict or None, got {kwargs!r}")
+    allowed = ("fullgraph", "dynamic", "backend", "mode", "options", "disable")
+    unknown = sorted(str(k) for k in kwargs if k not in allowed)
+    if unknown:
+        raise ValueError(f"compile_kwargs may hold {list(allowed)} (torch.compile's "
+                         f"keywords), got {unknown}")
+    for key in ("fullgraph", "disable"):
+        if key in kwargs:
+            check_flag(kwargs[key], f"compile_kwargs[{key!r}]")
+    if kwargs.get("dynamic") is not None:
+        check_flag(kwargs["dynamic"], "compile_kwargs['dynamic']")
+    backend = kwargs.get("backend")
+    if backend is not None and not (isinstance(backend, str) or callable(backend)):
+        raise TypeError(f"compile_kwargs['backend'] must be a backend's name or a callable, "
+                        f"got {backend!r}")
+    if kwargs.get("mode") is not None and kwargs["mode"] not in _COMPILE_MODES:
+        raise ValueError(f"compile_kwargs['mode'] must be one of {list(_COMPILE_MODES)} or "
+                         f"None, got {kwargs['mode']!r}")
+    options = kwargs.get("options")
+    if options is not None and not (isinstance(options, dict)
+                                    and all(isinstance(k, str) for k in options)):
+        raise TypeError(f"compile_kwargs['options'] must be a dict of inductor options by "
+                        f"name, or None, got {options!r}")
+    if options is not None and kwargs.get("mode") is not None:
+        raise ValueError("compile_kwargs may hold 'mode' or 'options', not both (torch.compile "
+                         "takes one of them)")
+    return dict(kwargs)
+
+
+def _fixed(name: str, doc: str, attribute: str | None = None) -> property:
+    """A read-only attribute ``name`` (held in ``attribute``, ``_name`` by default), set at
+    construction: the step's functions were built from it, so a new value would be taken by
+    some parts of the env and not others."""
+    held = attribute or "_" + name
+
+    def get(self: ParkingEnv) -> object:
+        return getattr(self, held)
+
+    def refuse(self: ParkingEnv, value: object) -> None:
+        raise AttributeError(f"ParkingEnv.{name} is fixed at construction (the step was built "
+                             f"from it): build a new env instead")
+
+    return property(get, refuse, doc=doc)
 
 
 def output_fields(state: AidedState, observation: torch.Tensor, cost: torch.Tensor,
@@ -205,12 +265,14 @@ class ParkingEnv(EnvBase):
             (``mode="reduce-overhead"``) the env copies each replay's outputs out of the
             graphs' memory (one ``torch._foreach_copy_``), since the next replay overwrites
             them.
-        validate_actions: raise on non-finite actions (the state is then left as it was). The
-            test runs inside the step; reading its bool is free on CPU, a synchronisation on
-            CUDA. With ``reset_in_step`` it is read with the ring's counters instead, once
-            every ``blocks_ahead`` hand-outs (a ``step_and_maybe_reset`` or a reset): a row
-            given a non-finite action takes (0, 0) (it stands still) and the ValueError
-            comes at that read.
+        validate_actions: raise on non-finite actions. On either reset path a row given a
+            non-finite action takes (0, 0) (it stands still: its pose never turns NaN). The
+            test runs inside the step; on the host path its bool is read after the step (free
+            on CPU, a synchronisation on CUDA) and the error leaves the state as it was. With
+            ``reset_in_step`` it is read with the ring's counters instead, once every
+            ``blocks_ahead`` hand-outs (a ``step_and_maybe_reset`` or a reset): the error
+            comes at that read, the rows having stood still. False: no error, the rows
+            stand still.
         reset_in_step: ``step_and_maybe_reset`` (rollouts, collectors) resets the rows a step
             ends inside the step's function, one graph from action to the next observation,
             with no host read-back per step (:mod:`torchpark.sim.ring`). None (default): on
@@ -260,26 +322,27 @@ class ParkingEnv(EnvBase):
         num_envs = int(num_envs)
         compile_step = check_flag(compile_step, "compile_step")
         validate_actions = check_flag(validate_actions, "validate_actions")
-        if compile_kwargs is not None and not isinstance(compile_kwargs, dict):
-            raise TypeError(f"compile_kwargs must be a dict or None, got {compile_kwargs!r}")
+        compile_kwargs = check_compile_kwargs(compile_kwargs)
         if config is not None and not isinstance(config, ParkingConfig):
             raise TypeError(f"config must be a ParkingConfig, got {type(config).__name__}")
         if aids is not None and not isinstance(aids, AidsConfig):
             raise TypeError(f"aids must be an AidsConfig or None, got {type(aids).__name__}")
         check_device(device)
+        device = torch.device(device)
+        device = torch.device("cpu") if device.type == "cpu" else device  # "cpu:0" is "cpu"
         reset_in_step = (torch.device(device).type == "cuda" if reset_in_step is None
                          else check_flag(reset_in_step, "reset_in_step"))
         if not is_integer(blocks_ahead) or blocks_ahead < 1:
             raise ValueError(f"blocks_ahead must be an int >= 1, got {blocks_ahead!r}")
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
-        self.num_envs = num_envs
-        self.config = cfg = config if config is not None else ParkingConfig()
-        self.aids = aids
+        self._num_envs = num_envs
+        self._config = cfg = config if config is not None else ParkingConfig()
+        self._aids_config = aids
         # The aids' settings the step and reset read: none on, when there is no aid.
         self._agent = agent = aids if aids is not None else AidsConfig()
         self.validate_actions = validate_actions
         self._occupancy = cfg.occupancy
-        self.layout = build_layout(cfg.lot, cfg.vehicle, self.device)
+        self._layout = build_layout(cfg.lot, cfg.vehicle, self.device)
         # set_success_threshold changes the world's threshold in place;
         # a compiled step reads it at run time.
         self._world = build_world(self.layout, cfg)
@@ -297,7 +360,7 @@ class ParkingEnv(EnvBase):
                           "compiler and none was found (install g++ or set CXX)",
                           RuntimeWarning, stacklevel=2)
             compile_step = False
-        self.compiled = compile_step  # whether the step and the reset's draw are compiled
+        self._compiled = compile_step  # whether the step and the reset's draw are compiled
         # The aids' output keys this env emits.
         self._aid_keys = ((BRAKE_KEYS if agent.brake is not None else ())
                           + (DOCKING_KEYS if agent.docking is not None else ()))
@@ -307,7 +370,7 @@ class ParkingEnv(EnvBase):
                      partial(reset_rows), partial(guarded_step, step)]
         if compile_step:
             _allow_recompiles()
-            kwargs = {"fullgraph": True, **(compile_kwargs or {})}
+            kwargs = {"fullgraph": True, **compile_kwargs}
             functions = [torch.compile(f, **kwargs) for f in functions]
             if _captures(kwargs):
                 functions = [_outputs_owned(f) for f in functions]
@@ -317,7 +380,7 @@ class ParkingEnv(EnvBase):
         # mask's rows from the ring, and the step alone with its action check on the device.
         (self._step_fn, self._new_episodes, self._step_reset_fn, self._reset_fn,
          self._guarded_fn) = functions
-        self.reset_in_step = reset_in_step
+        self._reset_in_step = reset_in_step
         self._make_specs()
         self._state, self._observation, self._cost = self._zeros()
         # The host path's episodes drawn ahead (a state of N rows, observations, costs);
@@ -331,15 +394,37 @@ class ParkingEnv(EnvBase):
         self._counters = Counters(torch.tensor(0, device=self.device),
                                   torch.tensor(num_envs, device=self.device))
         self._bad_action = torch.tensor(False, device=self.device)  # read with the counters
+        self._no_bad_action = torch.tensor(False, device=self.device)  # the host path's start
         self._drawn, self._known, self._unread = 1, 0, 0
         self._after_reset: TensorDictBase | None = None  # what the last step's reset returns
         self._resetting = False  # _step is called from _step_and_reset
         self._generator = torch.Generator(device=self.device)
+        # reset_in_step: the generator's state before each ring block was drawn (by slot)
+        self._ring_rng = [self._generator.get_state()] * self._blocks
         self._set_seed(seed)
         self._started = False  # no lot drawn yet: reset() first
         self._renderer = None  # a media.rendering.LotRenderer, made on the first picture
 
     # ------------------------------------------------------------------ configuration
+    num_envs = _fixed("num_envs", "The number of lots (the batch size).")
+    config = _fixed("config", "The task's :class:`ParkingConfig`.")
+    layout = _fixed("layout", "The lot's geometry (:func:`torchpark.sim.layout.build_layout`).")
+    compiled = _fixed("compiled", "Whether the step and the reset's draw are compiled.")
+    reset_in_step = _fixed("reset_in_step", "Whether ``step_and_maybe_reset`` resets the "
+                           "rows a step ends inside the step's function.")
+
+    aids = _fixed("aids", "The agent-side aids' :class:`~torchpark.aids.config.AidsConfig` "
+                  "(None: the paper's env).", "_aids_config")
+
+    @property
+    def validate_actions(self) -> bool:
+        """Whether a non-finite action raises (see the class's docstring); settable."""
+        return self._validate_actions
+
+    @validate_actions.setter
+    def validate_actions(self, value: bool) -> None:
+        self._validate_actions = check_flag(value, "validate_actions")
+
     @property
     def action_repeat(self) -> int:
         """Steps of dt one env step holds its action for (``aids.action_repeat``; 1 without
@@ -371,20 +456,23 @@ class ParkingEnv(EnvBase):
 
     def set_success_threshold(self, value: float | torch.Tensor) -> None:
         """Set the success test's threshold on C from the next step on: a finite number > 0,
-        or a 0-d tensor (copied on device, no host sync, so it is not checked). With
-        near-goal starts, which are drawn clear of the success test, the episodes drawn ahead
-        are discarded."""
+        or a 0-d float tensor holding one (copied; its value is read back to be checked, on
+        CUDA a synchronisation; one that requires grad is refused). With near-goal starts,
+        which are drawn clear of the success test, the episodes drawn ahead are
+        discarded."""
+        if isinstance(value, torch.Tensor):
+            if value.dim() != 0 or not value.is_floating_point() or value.requires_grad:
+                raise ValueError(f"success_threshold must be a 0-d float tensor that does not "
+                                 f"require grad, got shape {tuple(value.shape)} {value.dtype}"
+                                 f"{' requiring grad' if value.requires_grad else ''}")
+            number = float(value)
+        else:
+            number = value
+        if not is_number(number) or not math.isfinite(number) or number <= 0:
+            raise ValueError(f"success_threshold must be a finite float > 0, got {value!r}")
         if self._agent.near_goal_starts is not None:
             self._discard_ahead()
-        if isinstance(value, torch.Tensor):
-            if value.dim() != 0 or not value.is_floating_point():
-                raise ValueError(f"success_threshold must be a 0-d float tensor, got shape "
-                                 f"{tuple(value.shape)} {value.dtype}")
-            self._world.success_threshold.copy_(value)
-            return
-        if not is_number(value) or not math.isfinite(value) or value <= 0:
-            raise ValueError(f"success_threshold must be a finite float > 0, got {value!r}")
-        self._world.success_threshold.fill_(float(value))
+        self._world.success_threshold.fill_(float(number))
 
     @property
     def obs_dim(self) -> int:
@@ -425,16 +513,20 @@ class ParkingEnv(EnvBase):
         if seed is None:
             seed = int(torch.randint(0, SEED_LIMIT, (), dtype=torch.int64))
         seed = check_seed(seed, "seed")
-        self._generator.manual_seed(seed)
         self._discard_ahead()  # later lots come from the new seed
+        self._generator.manual_seed(seed)
 
     def _discard_ahead(self) -> None:
         """Hand out none of the episodes drawn so far: later resets draw new ones (from the
         generator, at the occupancy, against the success threshold of that time). With
-        reset_in_step, one read of the counters."""
+        reset_in_step, one read of the counters, and the generator put back to where it was
+        before the blocks drawn ahead of the current one: the host path, which draws a block
+        only when it needs one, has drawn no further, so both draw the same lots next."""
         self._ahead_used = self.num_envs
         if self.reset_in_step:
             block = int(self._counters.block)
+            if self._drawn > block + 1:
+                self._generator.set_state(self._ring_rng[(block + 1) % self._blocks])
             self._counters.used.fill_(self.num_envs)
             self._drawn, self._known, self._unread = block + 1, block, 0
 
@@ -453,8 +545,9 @@ class ParkingEnv(EnvBase):
         self._known, self._unread = block, 0
         n = self.num_envs
         while self._drawn < block + self._blocks:
-            start = (self._drawn % self._blocks) * n
-            put_rows_(self._ring, torch.arange(start, start + n, device=self.device),
+            slot = self._drawn % self._blocks
+            self._ring_rng[slot] = self._generator.get_state()  # for _discard_ahead
+            put_rows_(self._ring, torch.arange(slot * n, (slot + 1) * n, device=self.device),
                       self._draw_episodes())
             self._drawn += 1
 
@@ -593,7 +686,8 @@ class ParkingEnv(EnvBase):
         built otherwise refuses it). :meth:`restore` continues exactly from it."""
         if self.reset_in_step:
             ahead = {**self._flat(*self._ring, prefix="ring."), "ring_drawn": self._drawn,
-                     "ring_counters": torch.stack((*self._counters, self._bad_action.long()))}
+                     "ring_counters": torch.stack((*self._counters, self._bad_action.long())),
+                     "ring_generators": torch.stack(self._ring_rng)}
         else:
             ahead = {**self._flat(*self._ahead, prefix="ahead."), "ahead_used": self._ahead_used}
         return {**self._flat(self._state, self._observation, self._cost), **ahead,
@@ -648,11 +742,15 @@ class ParkingEnv(EnvBase):
         if not bool(torch.isfinite(threshold) & (threshold > 0)):
             raise ValueError(f"snapshot['success_threshold'] must be a finite number > 0, got "
                              f"{threshold!r}")
-        try:  # a generator state of the right size may still be no valid one
-            torch.Generator(device=self.device).set_state(snapshot["generator"])
-        except RuntimeError as err:
-            raise ValueError(f"snapshot['generator'] is not a state of this device's random "
-                             f"generator: {str(err).splitlines()[0]}") from None
+        generators = [("generator", snapshot["generator"])] + [
+            (f"ring_generators'][{i}", state.clone())  # set_state reads whole tensors
+            for i, state in enumerate(snapshot.get("ring_generators", ()))]
+        for name, state in generators:
+            try:  # a generator state of the right size may still be no valid one
+                torch.Generator(device=self.device).set_state(state)
+            except RuntimeError as err:
+                raise ValueError(f"snapshot['{name}'] is not a state of this device's random "
+                                 f"generator: {str(err).splitlines()[0]}") from None
         pool = "ring." if self.reset_in_step else "ahead."
         current, ahead = self._unflat(snapshot), self._unflat(snapshot, pool)
         for (state, observation, cost), prefix in ((current, ""), (ahead, pool)):
@@ -660,14 +758,16 @@ class ParkingEnv(EnvBase):
             if not bool(torch.isfinite(observation).all() & torch.isfinite(cost).all()):
                 raise ValueError(f"snapshot['{prefix}observation'] and ['{prefix}cost'] must "
                                  f"be finite")
-        # Everything fits: written from here on, nothing can fail half-way.
+        # Everything fits: written from here on, nothing can fail half-way. The occupancy
+        # and the threshold first: what they discard is replaced below.
+        self.occupancy = occupancy
+        self.set_success_threshold(threshold)
         self._state, self._observation, self._cost = current
         self._generator.set_state(snapshot["generator"])
-        self.occupancy = occupancy
-        self.set_success_threshold(threshold.to(self.device))
         self._started = started
         if self.reset_in_step:
             self._ring = ahead
+            self._ring_rng = [state.clone() for state in snapshot["ring_generators"]]
             counters = snapshot["ring_counters"].to(self.device, copy=True)
             self._counters, self._bad_action = Counters(counters[0], counters[1]), counters[2] > 0
             self._drawn, self._known, self._unread = int(drawn), int(block), 0
@@ -871,9 +971,9 @@ class ParkingEnv(EnvBase):
         if self.reset_in_step:  # the action check read with the ring's counters
             state, out, self._bad_action = self._guarded_fn(self._state, action,
                                                             self._bad_action)
-        else:
-            state, out, finite = self._step_fn(self._state, action)
-            if self.validate_actions and not bool(finite):  # before the state is kept
+        else:  # the same guarded step, its flag read now (free on a CPU)
+            state, out, bad = self._guarded_fn(self._state, action, self._no_bad_action)
+            if self.validate_actions and bool(bad):  # before the state is kept
                 raise ValueError("action must be finite (no NaN or inf); got a non-finite "
                                  "value")
         self._state, self._observation, self._cost = state, out.observation, out.cost[:, 0]

@@ -55,6 +55,8 @@ def _make_batched(num_envs: int, occupancy: float | None, device: torch.device |
                   seed: int | None, compile_step: bool, config: ParkingConfig | None,
                   aids: AidsConfig | None, max_episode_steps: int | None,
                   fields: dict[str, Any]) -> ParkingEnv:
+    if config is not None and not isinstance(config, ParkingConfig):
+        raise TypeError(f"config must be a ParkingConfig or None, got {config!r}")
     config = config if config is not None else ParkingConfig()
     names = {f.name for f in dataclasses.fields(ParkingConfig)}
     if "max_steps" in fields:
@@ -108,7 +110,14 @@ def _checked_actions(actions: Any, space: spaces.Box, shape: tuple[int, ...],
                      device: torch.device) -> torch.Tensor:
     """numpy-like actions -> float32 tensor, with a clear error for a wrong shape, a
     non-finite value or a value outside the Box."""
-    array = np.asarray(actions, dtype=np.float32)
+    if actions is None:
+        raise ValueError(f"action must be an array of shape {shape} = [v m/s, delta rad], "
+                         f"got None")
+    given = np.asarray(actions)
+    if given.dtype.kind not in "fiu":  # a complex part dropped, a string parsed: refused
+        raise ValueError(f"action must be a real array of shape {shape} = [v m/s, delta rad], "
+                         f"got dtype {given.dtype}")
+    array = given.astype(np.float32)
     if array.shape != shape:
         raise ValueError(f"action must have shape {shape} = [v m/s, delta rad], "
                          f"got {array.shape}")
@@ -121,18 +130,41 @@ def _checked_actions(actions: Any, space: spaces.Box, shape: tuple[int, ...],
     return torch.from_numpy(array).to(device)
 
 
-def _reset_lots(env: ParkingEnv, seed: int | None, options: dict[str, Any] | None
+def _reset_lots(env: ParkingEnv, seed: int | None, options: dict[str, Any] | None,
+                mask: np.ndarray | None = None, last: TensorDictBase | None = None
                 ) -> TensorDictBase:
     """Reseed the env's generator (when ``seed`` is given), apply ``options["occupancy"]``
-    (the only option) and draw new lots for every env."""
+    (the only option) and draw new lots for the rows of ``mask`` (N,) bool (every row when
+    None); the other rows keep what ``last`` (the env's last output) holds for them."""
+    options = dict(options or {})
+    if options.keys() - {"occupancy"}:
+        raise ValueError(f"options may hold only 'occupancy', got {sorted(options)}")
     if seed is not None:
         env.set_seed(seed)
-    options = dict(options or {})
     if "occupancy" in options:
-        env.occupancy = options.pop("occupancy")
-    if options:
-        raise ValueError(f"options may hold only 'occupancy', got {sorted(options)}")
-    return env.reset()
+        env.occupancy = options["occupancy"]
+    if mask is None:
+        return env.reset()
+    rows = torch.from_numpy(mask).to(env.device)[:, None]
+    given = last.clone() if last is not None else TensorDict(
+        batch_size=env.batch_size, device=env.device)
+    return env.reset(given.set("_reset", rows))
+
+
+def _reset_mask(options: dict[str, Any] | None, num_envs: int
+                ) -> tuple[dict[str, Any] | None, np.ndarray | None]:
+    """Gymnasium's ``options["reset_mask"]`` (a numpy bool array (N,) with a True, as
+    ``SyncVectorEnv`` checks it) split from the other options."""
+    if not options or "reset_mask" not in options:
+        return options, None
+    options = dict(options)
+    mask = options.pop("reset_mask")
+    if not isinstance(mask, np.ndarray) or mask.dtype != np.bool_ or mask.shape != (num_envs,):
+        raise ValueError(f"options['reset_mask'] must be a numpy bool array of shape "
+                         f"({num_envs},), got {mask!r}")
+    if not mask.any():
+        raise ValueError("options['reset_mask'] must hold at least one True")
+    return options, mask
 
 
 def _numpy_info(td: TensorDictBase) -> dict[str, np.ndarray]:
@@ -142,6 +174,19 @@ def _numpy_info(td: TensorDictBase) -> dict[str, np.ndarray]:
     aided = {key: td[key] for key in AID_INFO_KEYS if key in td.keys()}
     return {**info, **{key: (t[:, 0] if key != "position" else t).cpu().numpy()
                        for key, t in aided.items()}}
+
+
+def _batch_occupancy() -> property:
+    """The ``occupancy`` of a Gymnasium env's batched env (lots drawn from now on)."""
+    def get(self: ParkingGymEnv | ParkingVectorEnv) -> float:
+        return self.env.occupancy
+
+    def put(self: ParkingGymEnv | ParkingVectorEnv, value: float) -> None:
+        self.env.occupancy = value
+
+    return property(get, put, doc="Fraction in [0, 1] of the non-goal slots that hold a parked "
+                    "car in lots drawn from the next reset on (:attr:`ParkingEnv.occupancy`; "
+                    "settable, as ``reset(options={'occupancy': p})``).")
 
 
 class ParkingGymEnv(gymnasium.Env):
@@ -158,6 +203,7 @@ class ParkingGymEnv(gymnasium.Env):
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": RENDER_MODES, "render_fps": 10}
+    occupancy = _batch_occupancy()
 
     def __init__(self, render_mode: str | None = None, *, occupancy: float | None = None,
                  device: torch.device | str = "cpu", seed: int | None = None,
@@ -242,6 +288,10 @@ class ParkingVectorEnv(VectorEnv):
     the ended episode is in ``info["final_obs"]`` and its info in ``info["final_info"]``
     (rows marked by ``info["_final_obs"]``), as Gymnasium's ``SyncVectorEnv`` does in that
     mode. ``info`` also holds ``success``, ``collision`` and ``occupancy`` arrays (N,).
+    ``reset(options={"reset_mask": mask})`` draws new lots for the rows of the numpy bool
+    array ``mask`` (N,) only, as Gymnasium's ``SyncVectorEnv`` does (the other rows'
+    observations as they were; the infos' ``_`` masks mark the reset rows); ``seed`` is the
+    batch's one generator's, a list of seeds is refused.
     ``render()`` returns a tuple of the first ``render_envs`` lots' pictures.
     ``max_episode_steps`` (which ``make_vec`` passes: 1,000 unless given) is the episodes'
     step limit.
@@ -249,6 +299,7 @@ class ParkingVectorEnv(VectorEnv):
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": VECTOR_RENDER_MODES, "render_fps": 10,
                                           "autoreset_mode": AutoresetMode.SAME_STEP}
+    occupancy = _batch_occupancy()
 
     def __init__(self, num_envs: int, render_mode: str | None = None, *,
                  occupancy: float | None = None, device: torch.device | str = "cpu",
@@ -274,8 +325,13 @@ class ParkingVectorEnv(VectorEnv):
             raise ValueError("seed must be one int for the whole batch (one generator), "
                              f"got a list of {len(seed)}")
         super().reset(seed=seed)
-        self._td = _reset_lots(self.env, seed, options)
-        return self._td["observation"].cpu().numpy(), self._info(self._td)
+        options, mask = _reset_mask(options, self.num_envs)
+        mask = mask if self._td is not None else None  # the first reset draws every lot
+        self._td = _reset_lots(self.env, seed, options, mask, self._td)
+        info = self._info(self._td)
+        if mask is not None:  # Gymnasium's partial reset: the reset rows' infos
+            info.update({f"_{k}": mask for k in info if not k.startswith("_")})
+        return self._td["observation"].cpu().numpy(), info
 
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                           dict[str, Any]]:
