@@ -132,3 +132,4 @@ def test_a_directory_that_cannot_be_made_is_named(tmp_path):
         with locked(tmp_path / "file" / "run", "--out"):
             pass
 
+

@@ -81,3 +81,14 @@ def test_bad_grid_input_is_an_error(env):
         env.render_grid([0, 7])
     with pytest.raises(ValueError, match="one shape"):
         picture_grid([np.zeros((2, 2, 3), np.uint8), np.zeros((3, 2, 3), np.uint8)])
+
+
+def test_a_grid_is_bounded_and_named_before_it_is_drawn():
+    env = ParkingEnv(2, seed=0)
+    env.reset()
+    for columns in (100000, 0, 1.5, "2", True):
+        with pytest.raises(ValueError, match=r"columns must be an int in \[1, 2\]"):
+            env.render_grid(columns=columns)
+    with pytest.raises(TypeError, match="indices must be a sequence of env indices"):
+        env.render_grid(2)
+    assert env.render_grid(np.array([1, 0]), columns=1).shape[0] > env.render(0).shape[0]

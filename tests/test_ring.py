@@ -293,7 +293,8 @@ def test_the_spec_check_passes_and_no_two_tensors_share_memory(aids):
 
 
 def test_blocks_ahead_is_checked():
-    with pytest.raises(ValueError, match="blocks_ahead must be an int >= 1, got 0"):
-        ParkingEnv(2, reset_in_step=True, blocks_ahead=0)
+    for bad in (0, 257, 10**5, 10**9, 2.5):  # bounded before anything is drawn
+        with pytest.raises(ValueError, match=r"blocks_ahead must be an int in \[1, 256\]"):
+            ParkingEnv(2, reset_in_step=True, blocks_ahead=bad)
     with pytest.raises(TypeError, match="reset_in_step must be a bool, got 'yes'"):
         ParkingEnv(2, reset_in_step="yes")

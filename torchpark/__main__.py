@@ -46,22 +46,39 @@ def main(argv: list[str] | None = None) -> None:
     if env.compiled:
         print("compiling the step and the reset (tens of seconds; --eager skips it) ...",
               flush=True)
-    start = time.perf_counter()
-    env.rollout(3, break_when_any_done=False)  # warm-up: compiles step and reset when asked
-    if env.compiled:
-        print(f"compiled step and reset in {time.perf_counter() - start:.1f} s")
-    start = time.perf_counter()
-    rollout = env.rollout(args.steps, break_when_any_done=False)  # random actions, auto-reset
-    seconds = time.perf_counter() - start
-    nxt = rollout["next"]
-    episodes = int(nxt["done"].sum())
+    try:
+        start = time.perf_counter()
+        drive(env, 3)  # warm-up: compiles step and reset when asked
+        if env.compiled:
+            print(f"compiled step and reset in {time.perf_counter() - start:.1f} s")
+        start = time.perf_counter()
+        counts = drive(env, args.steps)
+        seconds = time.perf_counter() - start
+    except (torch.OutOfMemoryError, MemoryError) as err:  # an estimate is no guarantee
+        parser.exit(2, f"{parser.prog}: error: --num-envs {args.num_envs} ran out of memory "
+                       f"while stepping ({str(err).splitlines()[0][:120]}): ask for fewer\n")
     print(f"{args.num_envs} lots ({env.layout.num_slots} slots, {env.layout.width:.1f} m x "
           f"{env.layout.height:.1f} m), occupancy {args.occupancy}, {args.steps} steps: "
-          f"{args.num_envs * args.steps / seconds:,.0f} env-steps/s through env.rollout")
-    print(f"episodes ended: {episodes} (collision {int(nxt['collision'].sum())}, "
-          f"success {int(nxt['success'].sum())}, timeout {int(nxt['truncated'].sum())}); "
-          f"mean reward per step {float(nxt['reward'].mean()):.3f}")
+          f"{args.num_envs * args.steps / seconds:,.0f} env-steps/s through "
+          f"step_and_maybe_reset")
+    print(f"episodes ended: {counts['done']} (collision {counts['collision']}, "
+          f"success {counts['success']}, timeout {counts['truncated']}); "
+          f"mean reward per step {counts['reward'] / (args.num_envs * args.steps):.3f}")
 
+
+def drive(env: ParkingEnv, steps: int) -> dict[str, float]:
+    """``steps`` batched steps of uniformly random actions with auto-reset, as
+    ``env.rollout`` takes them but kept in no stack (memory of one step, whatever
+    ``steps``): the ended episodes' counts and the rewards' sum."""
+    td = env.reset()
+    totals = {key: torch.zeros((), dtype=torch.float64, device=env.device)
+              for key in ("done", "collision", "success", "truncated", "reward")}
+    for _ in range(steps):
+        td, td_ = env.step_and_maybe_reset(env.rand_action(td))
+        for key, total in totals.items():
+            total += td["next", key].sum()
+        td = td_
+    return {key: float(t) if key == "reward" else int(t) for key, t in totals.items()}
 
 if __name__ == "__main__":
     main()

@@ -58,6 +58,7 @@ from torchpark.config import (
     is_integer,
     is_number,
 )
+from torchpark.memory import check_fits
 from torchpark.sim.episodes import draw_lots
 from torchpark.sim.layout import build_layout
 from torchpark.sim.observation import observation_dim, observe
@@ -78,6 +79,14 @@ def _allow_recompiles() -> None:
     config.accumulated_recompile_limit = max(config.accumulated_recompile_limit,
                                              4 * _RECOMPILE_LIMIT)
 
+
+# With reset_in_step, at most this many blocks of N episodes drawn ahead: a host read every
+# 256 steps costs nothing measurable, and the first reset draws every block.
+MAX_BLOCKS_AHEAD = 256
+# The reset's batch draw's working memory at its peak, in rows of state per env (323 bytes
+# for the paper's lot): 115 eager, 12 compiled, measured as the growth of the process's peak
+# RSS over a reset and three steps of N = 200,000 on a CPU.
+_WORKING_ROWS = {False: 115, True: 12}
 
 # torch.compile modes that replay the graph as a CUDA graph (CUDA Graph Trees).
 _CAPTURING_MODES = ("reduce-overhead", "max-autotune")
@@ -280,8 +289,11 @@ class ParkingEnv(EnvBase):
             Either gives the same rollout for the same seed, as long as nothing else draws
             from the env's generator in between (``randomize_step_counts``): this path draws
             its episodes up to ``blocks_ahead`` blocks earlier.
-        blocks_ahead: with ``reset_in_step``, the steps between two host reads, >= 1; the env
-            holds ``blocks_ahead + 1`` blocks of N new episodes (about 330 bytes each).
+        blocks_ahead: with ``reset_in_step``, the steps between two host reads, in [1, 256];
+            the env holds ``blocks_ahead + 1`` blocks of N new episodes (about 330 bytes
+            each). An env that would not fit its device's free memory (its rows, those drawn
+            ahead and the reset's working memory, estimated) is refused before it allocates
+            them (:class:`~torchpark.memory.TooLarge`, a ValueError).
 
     Actions (N, 2) = (v m/s, delta rad) are clamped to [-max_speed, max_speed] and
     [-max_steer, max_steer] (documented behaviour); a non-finite action raises ValueError.
@@ -332,8 +344,9 @@ class ParkingEnv(EnvBase):
         device = torch.device("cpu") if device.type == "cpu" else device  # "cpu:0" is "cpu"
         reset_in_step = (torch.device(device).type == "cuda" if reset_in_step is None
                          else check_flag(reset_in_step, "reset_in_step"))
-        if not is_integer(blocks_ahead) or blocks_ahead < 1:
-            raise ValueError(f"blocks_ahead must be an int >= 1, got {blocks_ahead!r}")
+        if not is_integer(blocks_ahead) or not 1 <= blocks_ahead <= MAX_BLOCKS_AHEAD:
+            raise ValueError(f"blocks_ahead must be an int in [1, {MAX_BLOCKS_AHEAD}], got "
+                             f"{blocks_ahead!r}")
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self._num_envs = num_envs
         self._config = cfg = config if config is not None else ParkingConfig()
@@ -382,6 +395,8 @@ class ParkingEnv(EnvBase):
          self._guarded_fn) = functions
         self._reset_in_step = reset_in_step
         self._make_specs()
+        self._blocks = blocks_ahead + 1 if reset_in_step else 0
+        self._check_size()
         self._state, self._observation, self._cost = self._zeros()
         # The host path's episodes drawn ahead (a state of N rows, observations, costs);
         # the first `_ahead_used` of them are handed out.
@@ -389,7 +404,6 @@ class ParkingEnv(EnvBase):
         # reset_in_step's ring of `_blocks` blocks of N episodes and its device counters:
         # block 0 stands for no block (all used); the host has drawn blocks [0, _drawn),
         # last read block `_known` and let `_unread` hand-outs run since.
-        self._blocks = blocks_ahead + 1 if reset_in_step else 0
         self._ring = self._zeros(self._blocks * num_envs) if reset_in_step else None
         self._counters = Counters(torch.tensor(0, device=self.device),
                                   torch.tensor(num_envs, device=self.device))
@@ -641,6 +655,18 @@ class ParkingEnv(EnvBase):
             if not fine:
                 raise ValueError(f"{name}.{field} must be {allowed} in every row")
 
+    def _check_size(self) -> None:
+        """:class:`~torchpark.memory.TooLarge` before anything of N rows is allocated, where
+        the env would not fit its device: N rows of state (and their observations) for the
+        lots, as many drawn ahead (the ring's blocks with reset_in_step), and the reset's
+        batch draw's working memory at its peak (_WORKING_ROWS)."""
+        row = sum(t.numel() * t.element_size() for t in tree_flatten(self._zeros(1))[0])
+        rows = 2 + self._blocks + _WORKING_ROWS[self.compiled]
+        check_fits(self.num_envs * row * rows,
+                   f"ParkingEnv(num_envs={self.num_envs}"
+                   + (f", blocks_ahead={self._blocks - 1})" if self._blocks else ")"),
+                   self.device)
+
     def _zeros(self, rows: int | None = None) -> tuple[AidedState, torch.Tensor, torch.Tensor]:
         """A state of ``rows`` rows (default N) holding no lot, with its observation and
         cost: zeros."""
@@ -796,9 +822,15 @@ class ParkingEnv(EnvBase):
 
     def render_grid(self, indices: Sequence[int] | None = None, columns: int | None = None
                     ) -> np.ndarray:
-        """Pictures of several envs' lots (default: all) tiled row by row into one image."""
+        """Pictures of several envs' lots (default: all) tiled row by row into one image,
+        ``columns`` wide (an int in [1, len(indices)]; default about the square root). A grid
+        larger than the host's free memory is refused before it is drawn."""
         if not self._started:
             raise RuntimeError("ParkingEnv.render before reset: call env.reset() first")
+        if indices is not None and (isinstance(indices, (str, bytes))
+                                    or not isinstance(indices, (Sequence, np.ndarray))):
+            raise TypeError(f"indices must be a sequence of env indices (ints in [0, "
+                            f"{self.num_envs - 1}]) or None, got {indices!r}")
         if indices is not None and not all(is_integer(i) for i in indices):
             raise IndexError(f"indices must be ints in [0, {self.num_envs - 1}], got "
                              f"{list(indices)}")
@@ -807,12 +839,18 @@ class ParkingEnv(EnvBase):
         if bad or not indices:
             raise IndexError(f"indices must be non-empty ints in [0, {self.num_envs - 1}], "
                              f"got {bad or indices}")
+        if columns is not None and not (is_integer(columns) and 1 <= columns <= len(indices)):
+            raise ValueError(f"columns must be an int in [1, {len(indices)}] (the pictures' "
+                             f"count) or None, got {columns!r}")
         from torchpark.media.rendering import LotRenderer, picture_envs  # Pillow, on demand
 
         if self._renderer is None:
             self._renderer = LotRenderer(self.layout, self.config)
-        return picture_envs(self._renderer, self._sim, self._observation, indices, columns,
-                            self._drivers(indices))
+        width, height = self._renderer.size
+        check_fits(2 * len(indices) * width * height * 3,  # the pictures and their grid
+                   f"render_grid of {len(indices)} pictures", torch.device("cpu"))
+        return picture_envs(self._renderer, self._sim, self._observation, indices,
+                            None if columns is None else int(columns), self._drivers(indices))
 
     def _drivers(self, indices: list[int]) -> list[str] | None:
         """Which layer drove each row's last step, when the brake or the docking law is on:

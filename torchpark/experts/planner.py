@@ -37,6 +37,7 @@ from torchpark.aids.brake import fence
 from torchpark.aids.docking import error_from_goal
 from torchpark.config import LotConfig, VehicleConfig
 from torchpark.experts.config import ExpertConfig, PlannerConfig
+from torchpark.memory import check_fits
 from torchpark.sim.geometry import OrientedBoxes, oriented_boxes, separation, wrap_angle
 from torchpark.sim.layout import LotLayout, build_layout
 from torchpark.sim.step import ParkingState
@@ -157,8 +158,14 @@ def cost_to_go(layout: LotLayout, vehicle: VehicleConfig, cfg: PlannerConfig,
     The tables price a path's changes of gear as :func:`plan_control` does its own."""
     device = layout.slots.device
     grid = grid_of(layout, cfg)
-    poses = grid_poses(grid, device)
     prim = primitives(cfg, vehicle, device)
+    slots, arcs_k = layout.num_slots, prim.travel.shape[0]
+    # per cell, the tables and the arcs' costs (S, per arc and gear), the arcs' end cells,
+    # the slot tests' temporaries: 3.6 KB for the paper's lot, as measured (peak RSS)
+    check_fits(grid.count * (slots * (59 + 4 * arcs_k) + 16 * arcs_k + 12),
+               f"PlannerConfig(cell={cfg.cell:g}, headings={cfg.headings}): its grid of "
+               f"{grid.count:,} cells", torch.device(device))
+    poses = grid_poses(grid, device)
     ends = cell_index(arcs(poses, prim.travel, prim.curvature), grid)  # (C, K)
     mids = cell_index(arcs(poses, prim.travel / 2, prim.curvature), grid)
     free, walled = free_cells(poses, layout, vehicle, cfg.clearance)  # (S, C), (C,)
