@@ -122,3 +122,20 @@ def test_load_agent_names_a_file_that_is_not_a_checkpoint(tmp_path):
     torch.save({"weights": torch.zeros(1)}, bad)
     with pytest.raises(ValueError, match=r"model\.pt"):
         load_agent(str(bad))
+
+
+@pytest.mark.parametrize(("entry", "value", "message"), [
+    ("obs_norm", "abc", r"its obs_norm must be a dict"),
+    ("obs_norm", {}, r"its obs_norm does not fit the input normaliser"),
+    ("frames", None, r"its frames must be an int >= 0"),
+    ("frames", "many", r"its frames must be an int >= 0"),
+    ("trained_by", 3, r"its trained_by must be a str"),
+])
+def test_a_crafted_checkpoint_entry_is_named_with_its_file(tmp_path, entry, value, message):
+    saved = torch.load(CHECKPOINTS[0], weights_only=True)
+    crafted = tmp_path / "crafted.pt"
+    torch.save({**saved, entry: value}, crafted)
+    with pytest.raises(ValueError, match=rf"checkpoint '.*crafted\.pt': {message}"):
+        load_agent(str(crafted))
+    with pytest.raises(ValueError, match=rf"crafted\.pt'?: {message}"):
+        checkpoint_agent(str(crafted))

@@ -48,3 +48,30 @@ def test_the_command_line_refuses_what_would_hurt(short_run, tmp_path, capsys):
         with pytest.raises(SystemExit):
             main(argv)
         assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("field", "value"), [("frames", None), ("frames", "many"),
+                                              ("wall_clock_s", "x")])
+def test_the_evaluation_names_the_file_and_the_field_of_a_crafted_state(
+        short_run, tmp_path, capsys, field, value):
+    out, _ = short_run
+    state = torch.load(out / STATE, weights_only=True)
+    torch.save({**state, field: value}, tmp_path / STATE)
+    with pytest.raises(SystemExit) as refused:
+        main(["--out", str(tmp_path), "--evaluate", "--episodes", "1"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert refused.value.code == 2 and STATE in err and f"its {field} must be" in err, err
+
+
+def test_an_empty_out_is_refused_by_every_command(capsys):
+    from trainers.distill import main as distill
+    from trainers.evaluate import main as evaluator
+    from trainers.plots import main as plots
+    from trainers.sb3_paper import main as paper
+
+    for command, argv in ((main, []), (paper, []), (evaluator, ["--expert", "planner"]),
+                          (plots, ["results/her"]), (distill, ["teacher.pt"])):
+        with pytest.raises(SystemExit) as refused:
+            command([*argv, "--out", ""])
+        assert refused.value.code == 2
+        assert "argument --out: must name a directory, got ''" in capsys.readouterr().err

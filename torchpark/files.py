@@ -13,6 +13,7 @@ refused by name, and the lock goes with the process however it ends.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import csv
 import io
@@ -153,3 +154,11 @@ def locked(directory: str | Path, name: str = "directory") -> Iterator[Path]:
         yield directory
     finally:
         lock.release()
+
+
+def directory_arg(text: str) -> Path:
+    """A command line's directory argument (argparse ``type=``): a path, never empty (an
+    empty ``--out ''`` would otherwise be the working directory, or nothing at all)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"must name a directory, got {text!r}")
+    return Path(text)

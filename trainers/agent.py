@@ -211,4 +211,9 @@ def load_agent(path: str, device: str | None = None) -> TrainedAgent:
     load_weights(actor, checkpoint["actor"], path, "actor")
     trained_by = checkpoint.get("trained_by") or (
         f"PPO ({cfg.logger.exp_name} preset run), {checkpoint['frames']:,} frames")
-    return TrainedAgent(cfg, actor.to(cfg.env.device), checkpoint["obs_norm"], trained_by)
+    agent = TrainedAgent(cfg, actor.to(cfg.env.device), checkpoint["obs_norm"], trained_by)
+    try:  # the input transforms with the saved normaliser, built now to check it
+        _ = agent._inputs
+    except ValueError as err:
+        raise ValueError(f"checkpoint {str(path)!r}: {err}") from None
+    return agent

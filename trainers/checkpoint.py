@@ -3,6 +3,7 @@ crafted file cannot run code, and a file that is not a torchpark checkpoint says
 
 from __future__ import annotations
 
+import math
 import pickle
 import zipfile
 from pathlib import Path
@@ -11,12 +12,38 @@ import torch
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from torchpark.config import is_integer, is_number
 from trainers.config import TrainConfig, check_flags
 
 # What every checkpoint holds (evaluation needs no more); a full one, written by the
 # trainer, can also be resumed from.
 EVALUATION_KEYS = frozenset({"config", "frames", "actor", "obs_norm"})
 RESUME_KEYS = EVALUATION_KEYS | {"critic", "optim", "env"}
+
+
+def _count(value: object) -> bool:
+    return is_integer(value) and value >= 0
+
+
+def _seconds(value: object) -> bool:
+    return is_number(value) and math.isfinite(value) and value >= 0
+
+
+# The plain entries a checkpoint (or a recipe's state file) may hold, with what each must be.
+ENTRIES = {
+    "frames": (_count, "an int >= 0 (frames trained)"),
+    "iterations_done": (_count, "an int >= 0"),
+    "approach_states": (_count, "an int >= 0"),
+    "wall_clock_s": (_seconds, "a finite number of seconds >= 0"),
+    "wall_s": (_seconds, "a finite number of seconds >= 0"),
+    "obs_norm": (lambda v: isinstance(v, dict), "a dict (the normaliser's state)"),
+    "trained_by": (lambda v: isinstance(v, str), "a str"),
+}
+
+
+def _shown(value: object) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else f"a {type(value).__name__}"
 
 
 def load_checkpoint(path: str | Path, device: torch.device | str = "cpu",
@@ -44,6 +71,10 @@ def load_checkpoint(path: str | Path, device: torch.device | str = "cpu",
     if missing:
         raise ValueError(f"checkpoint {str(path)!r} is not a torchpark checkpoint: it lacks "
                          f"{missing}")
+    for key, (fits, allowed) in ENTRIES.items():
+        if key in checkpoint and not fits(checkpoint[key]):
+            raise ValueError(f"checkpoint {str(path)!r}: its {key} must be {allowed}, got "
+                             f"{_shown(checkpoint[key])}")
     if "config" not in required:
         return checkpoint
     if not isinstance(checkpoint["config"], dict):

@@ -108,7 +108,7 @@ from torchpark.config import ParkingConfig, check_types, is_integer, positive, r
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.experts import ExpertConfig, PlannerConfig
 from torchpark.experts.planner import GearHold, lot_planner, plan_control
-from torchpark.files import locked, save_torch, write_csv
+from torchpark.files import directory_arg, locked, save_torch, write_csv
 from torchpark.runner import FREEZE_DISTANCE, FREEZE_STEPS, run_episodes
 from torchpark.sim.geometry import wrap_angle
 from torchpark.sim.step import ParkingState, move
@@ -850,7 +850,8 @@ def main(argv: list[str] | None = None) -> None:
                                      description=__doc__.splitlines()[0])
     parser.add_argument("teacher", help="a hybrid agent's checkpoint (e.g. "
                                         "results/fast/checkpoint_final.pt)")
-    parser.add_argument("--out", required=True, help="directory of the student's files")
+    parser.add_argument("--out", required=True, type=directory_arg,
+                        help="directory of the student's files")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the outputs already in --out (refused by default)")
     parser.add_argument("--resume", action="store_true",
@@ -869,7 +870,7 @@ def main(argv: list[str] | None = None) -> None:
                     if k is not type(None))
         parser.add_argument(flag, type=kind, default=field.default)
     args = parser.parse_args(argv)
-    out = Path(args.out)
+    out = args.out
     try:
         cfg = DistillConfig(**{f.name: getattr(args, f.name)
                                for f in dataclasses.fields(DistillConfig)})

@@ -45,7 +45,7 @@ from torchpark import AidsConfig, ParkingConfig, ParkingEnv
 from torchpark.config import MAX_COLLISION_SUBSTEPS, SEED_LIMIT, check_seed, is_integer
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.experts import ExpertConfig, PlannerExpert
-from torchpark.files import locked, write_csv, write_text
+from torchpark.files import directory_arg, locked, write_csv, write_text
 from torchpark.media.recording import record_video
 from torchpark.runner import Episodes, run_episodes
 from trainers.agent import load_agent
@@ -388,7 +388,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="evaluate a hand-written agent (torchpark.experts) instead")
     parser.add_argument("--episodes", type=int, default=200, help="per occupancy level")
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--out", default=None, help="directory (default: the checkpoint's)")
+    parser.add_argument("--out", default=None, type=directory_arg,
+                        help="directory (default: the checkpoint's)")
     parser.add_argument("--videos", choices=("mp4", "gif", "none"), default="mp4",
                         help="one rollout video per occupancy level, in --out")
     parser.add_argument("--overwrite", action="store_true",
@@ -417,7 +418,7 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--aids and --sample apply to a checkpoint's policy, not to --expert")
     if args.expert is not None and args.out is None:
         parser.error("--expert needs --out DIR (there is no checkpoint's folder to write to)")
-    out = Path(args.out) if args.out else Path(args.checkpoint).parent
+    out = args.out if args.out is not None else Path(args.checkpoint).parent
     videos = None if args.videos == "none" else args.videos
     try:
         check_seed(args.seed, "--seed")

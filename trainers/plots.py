@@ -22,7 +22,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from torchpark.files import write_file
+from torchpark.files import directory_arg, write_file
 
 Scalars = dict[str, tuple[np.ndarray, np.ndarray]]
 LOSSES = ("loss/objective", "loss/critic", "loss/kl_approx", "loss/clip_fraction")
@@ -209,10 +209,11 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m trainers.plots",
                                      description=__doc__.splitlines()[0])
     parser.add_argument("run_dir")
-    parser.add_argument("--out", default=None, help="directory (default: run_dir)")
+    parser.add_argument("--out", default=None, type=directory_arg,
+                        help="directory (default: run_dir)")
     args = parser.parse_args(argv)
     matplotlib.use("Agg")  # files only (in a notebook the figures show inline instead)
-    out = Path(args.out or args.run_dir)
+    out = args.out if args.out is not None else Path(args.run_dir)
     dagger = Path(args.run_dir) / "dagger.csv"
     try:
         if dagger.is_file() and not any(Path(args.run_dir).glob("events.out.tfevents.*")):

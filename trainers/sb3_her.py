@@ -29,7 +29,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from torchrl.envs import TransformedEnv
 
 from torchpark.curriculum import PAPER_LEVELS, level_at
-from torchpark.files import locked, save_torch
+from torchpark.files import directory_arg, locked, save_torch
 from torchpark.goal_env import GOAL_ENV_ID, goal_observation
 from trainers.checkpoint import load_checkpoint, load_weights
 from trainers.evaluate import evaluate_agent, evaluate_into, run_command, sb3_agent
@@ -108,7 +108,7 @@ def evaluate(out: Path, episodes: int, seed: int) -> list[dict]:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m trainers.sb3_her",
                                      description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("results/her"))
+    parser.add_argument("--out", type=directory_arg, default=Path("results/her"))
     parser.add_argument("--total-frames", type=int, default=100_000)
     parser.add_argument("--checkpoint-every", type=int, default=10_000, help="frames")
     parser.add_argument("--seed", type=int, default=0)

@@ -43,7 +43,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 import torchpark  # noqa: F401  (registers torchpark/Parking-v0)
 from torchpark import ParkingEnv
 from torchpark.curriculum import PAPER_LEVELS, level_at
-from torchpark.files import locked, save_torch, write_file
+from torchpark.files import directory_arg, locked, save_torch, write_file
 from trainers.checkpoint import load_checkpoint, load_weights
 from trainers.evaluate import evaluate_agent, evaluate_into, run_command, sb3_agent
 
@@ -189,7 +189,7 @@ def evaluate(out: Path, episodes: int, seed: int) -> list[dict]:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m trainers.sb3_paper",
                                      description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("results/paper"))
+    parser.add_argument("--out", type=directory_arg, default=Path("results/paper"))
     parser.add_argument("--total-frames", type=int, default=12_000_000)
     parser.add_argument("--frames-per-level", type=int, default=2_000_000)
     parser.add_argument("--checkpoint-every", type=int, default=204_800,

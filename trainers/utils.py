@@ -174,7 +174,12 @@ def make_eval_env(cfg: TrainConfig, obs_norm: dict, occupancy: float, num_envs: 
     inputs = policy_input(cfg, base)
     env = TransformedEnv(base, Compose(*inputs))
     norm = inputs[-1]
-    norm.load_state_dict(obs_norm)
+    try:
+        norm.load_state_dict(obs_norm)
+    except (RuntimeError, ValueError, KeyError, TypeError, AttributeError, IndexError) as err:
+        text = str(err).strip().splitlines()
+        raise ValueError(f"its obs_norm does not fit the input normaliser its config builds: "
+                         f"{text[0] if text else type(err).__name__}") from None
     norm.freeze()
     return env
 
