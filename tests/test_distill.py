@@ -212,7 +212,9 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
                                           ("target_lateral", float("inf")),
                                           ("target_heading", -0.1), ("target_heading", 4.0),
                                           ("funnel_lateral", 0.0),
+                                          ("funnel_lateral", 0.1),  # inside the target's
                                           ("funnel_heading", 4.0),
+                                          ("funnel_heading", 0.1),
                                           ("planner_headings", 7),
                                           ("planner_headings", 2000),
                                           ("handover", -1), ("handover", 1001),
@@ -225,6 +227,15 @@ def test_approach_states_carry_the_laws_forward_control(teacher_path):
 def test_bad_settings_are_refused_by_name(field, value):
     with pytest.raises((ValueError, TypeError), match=rf"DistillConfig\.{field}"):
         DistillConfig(**{field: value})
+
+
+def test_the_command_line_names_the_flag_of_a_funnel_inside_the_target(capsys):
+    with pytest.raises(SystemExit) as refused:
+        main(["teacher.pt", "--out", "student", "--funnel-lateral", "0.1"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert refused.value.code == 2 and "PlannerConfig" not in err
+    assert "DistillConfig.funnel_lateral (--funnel-lateral) must be" in err, err
+    assert "[DistillConfig.target_lateral = 0.5, inf]" in err
 
 
 @pytest.fixture

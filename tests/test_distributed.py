@@ -173,6 +173,22 @@ def test_dist_config_errors_name_the_field():
             load_config("smoke", overrides)
 
 
+def test_more_ranks_than_cores_are_refused_before_anything_is_written(tmp_path, monkeypatch,
+                                                                     capsys):
+    """dist.world_size=4 on a 2-core machine: one line, no run folder, no rank started."""
+    import os
+
+    from trainers.ppo import main
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
+    with pytest.raises(SystemExit) as refused:
+        main(["--preset", "smoke", "dist.world_size=4", f"logger.log_dir={tmp_path / 'run'}"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert refused.value.code == 2
+    assert "dist.world_size=4 ranks on this machine's 2 CPU core(s)" in err, err
+    assert not (tmp_path / "run").exists()
+
+
 def backends() -> list:
     try:
         import ray  # noqa: F401

@@ -107,6 +107,18 @@ def test_a_dagger_csv_with_a_word_for_a_number_is_refused(tmp_path):
         read_dagger(tmp_path / "dagger.csv")
 
 
+@pytest.mark.parametrize("word", ["nan", "inf", "-inf"])
+def test_a_dagger_csv_holding_nan_is_refused_in_one_line(tmp_path, capsys, word):
+    write_dagger(tmp_path / "dagger.csv", 3)
+    text = (tmp_path / "dagger.csv").read_text().replace("0.5", word)
+    (tmp_path / "dagger.csv").write_text(text)
+    with pytest.raises(SystemExit) as refused:
+        main([str(tmp_path)])
+    err = capsys.readouterr().err
+    assert refused.value.code == 2 and "Traceback" not in err
+    assert f"holds a value that is not a number: '{word}' in column" in err
+
+
 @pytest.mark.parametrize(("make", "message"), [
     (lambda d: (d / "events.out.tfevents.not-a-time").write_text("garbage"),
      "hold no scalars"),

@@ -83,6 +83,7 @@ import argparse
 import dataclasses
 import hashlib
 import math
+import re
 import time
 import typing
 from dataclasses import dataclass
@@ -107,10 +108,11 @@ from torchpark.aids.step import AidedState, AidState, aided_control
 from torchpark.config import ParkingConfig, check_types, is_integer, positive, require
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.experts import ExpertConfig, PlannerConfig
-from torchpark.experts.planner import GearHold, lot_planner, plan_control
+from torchpark.experts.planner import GearHold, grid_of, lot_planner, plan_control
 from torchpark.files import directory_arg, locked, save_torch, write_csv
 from torchpark.runner import FREEZE_DISTANCE, FREEZE_STEPS, run_episodes
 from torchpark.sim.geometry import wrap_angle
+from torchpark.sim.layout import build_layout
 from torchpark.sim.step import ParkingState, move
 from torchpark.transforms.actions import (
     GearActionMap,
@@ -279,6 +281,7 @@ class DistillConfig:
             value = getattr(self, name)
             require(value is None or 1 <= value <= high, f"DistillConfig.{name}",
                     f"None or an int in [1, {high}]", value)
+        teacher_planner(self)  # the planner's own bounds between them (the funnel's)
 
 class Teacher:
     """The hand-written expert's control at any state of a paper's env (its lots, its world):
@@ -708,12 +711,29 @@ def teacher_planner(cfg: DistillConfig, planner: PlannerConfig | None = None
     """The teacher's planner: ``planner`` (default :class:`PlannerConfig`) with the run's gear
     hold and car margin and, where set, its target's lateral and heading bounds, its headings
     and the law's funnel."""
-    given = {name: value for name, value in (
-        ("lateral", cfg.target_lateral), ("heading", cfg.target_heading),
-        ("headings", cfg.planner_headings), ("law_lateral", cfg.funnel_lateral),
-        ("law_heading", cfg.funnel_heading)) if value is not None}
-    return dataclasses.replace(planner or PlannerConfig(), gear_hold=cfg.gear_hold,
-                               car_margin=cfg.car_margin, **given)
+    given = {name: getattr(cfg, ours) for name, ours in PLANNER_FIELDS.items()
+             if getattr(cfg, ours) is not None}
+    try:
+        return dataclasses.replace(planner or PlannerConfig(), **given)
+    except ValueError as err:  # in the words of the run's own settings and flags
+        text = re.sub(r"PlannerConfig\.(\w+)", lambda m: _our_field(m.group(1)), str(err))
+        raise ValueError(re.sub(r"\[(\w+) = ", lambda m: f"[{_our_field(m.group(1), False)} = ",
+                                text)) from None
+
+
+# The teacher's planner's settings a run sets (PlannerConfig's name: DistillConfig's).
+PLANNER_FIELDS = {"lateral": "target_lateral", "heading": "target_heading",
+                  "headings": "planner_headings", "law_lateral": "funnel_lateral",
+                  "law_heading": "funnel_heading", "gear_hold": "gear_hold",
+                  "car_margin": "car_margin"}
+
+
+def _our_field(planner_name: str, flag: bool = True) -> str:
+    """A PlannerConfig field's name as the run's setting (and its flag) that sets it."""
+    ours = PLANNER_FIELDS.get(planner_name)
+    if ours is None:
+        return f"PlannerConfig.{planner_name}"
+    return f"DistillConfig.{ours}" + (f" (--{ours.replace('_', '-')})" if flag else "")
 
 
 def distill(teacher_path: str, out: Path, cfg: DistillConfig,
@@ -740,8 +760,16 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
     actor, _ = build_models(scfg)
     exponents = torch.tensor([cfg.speed_exponent, cfg.steer_exponent], device=base.device)
-    teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, teacher_planner(cfg, planner),
-                      cfg.reverse_margin, cfg.handover)
+    plan = teacher_planner(cfg, planner)
+    cells = grid_of(build_layout(base.config.lot, base.config.vehicle, "cpu"), plan).count
+    print(f"the teacher's planner: its cost-to-go tables over {cells:,} cells (about 3 min on "
+          f"two cores at the default grid; --planner-headings fewer for a coarser one) ...",
+          flush=True)
+    started_tables = time.perf_counter()
+    teacher = Teacher(teacher_path, env, cfg.settle, cfg.retry, plan, cfg.reverse_margin,
+                      cfg.handover)
+    print(f"the teacher's planner ready in {time.perf_counter() - started_tables:.0f} s",
+          flush=True)
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
     data, rows = [], []  # (inputs, labels, weights) per iteration
     frames = approach = first = 0

@@ -89,13 +89,30 @@ def leave(world: World) -> None:
         dist.destroy_process_group()
 
 
-def launch(entry: Callable[..., Any], args: Sequence[Any], world_size: int) -> Any:
+def check_cores(world_size: int, device: torch.device) -> int:
+    """This process's CPU cores; ValueError where ``world_size`` ranks on the CPU would be
+    more than them (ranks sharing a core only run slower, every one of them)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
+        else os.cpu_count() or 1
+    if world_size > cores and device.type == "cpu":
+        raise ValueError(f"dist.world_size={world_size} ranks on this machine's {cores} CPU "
+                         f"core(s): each rank needs a core of its own (ranks sharing cores "
+                         f"only run slower): at most {cores}")
+    return cores
+
+
+def launch(entry: Callable[..., Any], args: Sequence[Any], world_size: int,
+           device: torch.device) -> Any:
     """Run ``entry(*args)`` on ``world_size`` local ranks started by torch's elastic agent
     (as ``torchrun --standalone --nproc_per_node=world_size`` would); returns rank 0's
-    result. ``entry`` must be importable (ranks start by spawn). Each rank gets an equal
-    share of the CPU threads unless ``OMP_NUM_THREADS`` is set; gloo talks over loopback
+    result. ``entry`` must be importable (ranks start by spawn). On the CPU (``device``) no
+    more ranks than cores (:func:`check_cores`). Each rank gets an equal share of the CPU threads
+    unless ``OMP_NUM_THREADS`` is set; gloo talks over loopback
     unless ``GLOO_SOCKET_IFNAME`` is set."""
-    os.environ.setdefault("OMP_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // world_size)))
+    cores = check_cores(world_size, device)
+    print(f"starting {world_size} ranks (torch's elastic agent) on {cores} CPU core(s) ...",
+          flush=True)
+    os.environ.setdefault("OMP_NUM_THREADS", str(max(1, cores // world_size)))
     os.environ.setdefault("GLOO_SOCKET_IFNAME", "lo")
     config = LaunchConfig(min_nodes=1, max_nodes=1, nproc_per_node=world_size,
                           rdzv_backend="c10d", rdzv_endpoint="localhost:0",

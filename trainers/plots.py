@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 from pathlib import Path
 
 import matplotlib
@@ -178,10 +179,19 @@ def read_dagger(path: str | Path) -> dict[str, np.ndarray]:
                          f"{missing[0]!r}")
     if not rows:
         raise ValueError(f"{str(path)!r} holds no iteration")
-    try:
-        return {key: np.asarray([float(r[key]) for r in rows]) for key in DAGGER_COLUMNS}
-    except (TypeError, ValueError):
-        raise ValueError(f"{str(path)!r} holds a value that is not a number") from None
+    columns = {}
+    for key in DAGGER_COLUMNS:
+        for row, r in enumerate(rows, start=1):
+            try:
+                value = float(r[key])
+            except (TypeError, ValueError):
+                value = math.nan
+            if not math.isfinite(value):
+                raise ValueError(f"{str(path)!r} holds a value that is not a number: "
+                                 f"{r[key]!r} in column {key!r}, row {row} (finite numbers "
+                                 f"only)")
+        columns[key] = np.asarray([float(r[key]) for r in rows])
+    return columns
 
 
 def plot_dagger(columns: dict[str, np.ndarray]) -> Figure:

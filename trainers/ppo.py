@@ -28,6 +28,7 @@ from trainers.config import PRESETS, TrainConfig, load_config
 from trainers.distributed import (
     World,
     all_gather,
+    check_cores,
     data_parallel,
     gather_episodes,
     join,
@@ -120,10 +121,13 @@ def train(cfg: TrainConfig, resume: str | None = None, overwrite: bool = False,
                 leave(world)
                 raise ValueError(error)
             return _train(cfg, resume, world, init, stale)
+    if size > 1:
+        check_cores(size, torch.device(cfg.env.device))  # before anything is written
     with locked(run_dir(cfg), "logger.log_dir"):
         stale = prepare(cfg, resume, overwrite, init)
         if size > 1:
-            return launch(_launched_rank, (cfg, resume, init, stale), size)
+            return launch(_launched_rank, (cfg, resume, init, stale), size,
+                          torch.device(cfg.env.device))
         return _train(cfg, resume, World(device=torch.device(cfg.env.device)), init, stale)
 
 
