@@ -233,6 +233,12 @@ def test_occupancy_set_on_the_gymnasium_envs_reaches_the_lots():
         assert np.all(info["occupancy"] == np.float32(0.9))
         with pytest.raises(ValueError, match="occupancy"):
             env.occupancy = -0.1
+    wrapped = gymnasium.make(ENV_ID, seed=0)  # through Gymnasium's wrappers
+    wrapped.set_wrapper_attr("occupancy", 0.6)
+    assert wrapped.unwrapped.env.occupancy == 0.6 == wrapped.get_wrapper_attr("occupancy")
+    for bad in (0, -2, 1.5, "3"):
+        with pytest.raises(ValueError, match="render_envs must be an int >= 1"):
+            ParkingVectorEnv(2, render_envs=bad)
 
 
 def test_the_vector_env_resets_the_rows_of_a_reset_mask():

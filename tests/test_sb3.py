@@ -76,7 +76,7 @@ def test_the_batch_answers_for_every_env():
         env.set_attr("render_envs", 2, indices=[0])
     env.set_attr("render_envs", 2)
     assert env.venv.render_envs == 2
-    with pytest.raises(ValueError, match=r"render_envs must be an int in \[1, 4\]"):
+    with pytest.raises(ValueError, match=r"render_envs must be an int >= 1"):
         env.set_attr("render_envs", 0)
     with pytest.raises(RuntimeError, match="step_async"):
         env.step_wait()
@@ -170,3 +170,31 @@ def test_rendering_goes_through_the_batch():
     env.reset()
     images = env.get_images()
     assert len(images) == 2 and images[0].dtype == np.uint8 and images[0].ndim == 3
+
+
+def test_sb3s_own_vec_env_corners(tmp_path):
+    """The corners of SB3's tests/test_vec_envs.py that a batch can keep: seeding through
+    VecNormalize (test_vec_deterministic), seed() giving every env its own lot
+    (test_vec_seeding), render() with and without its mode and a warning for another
+    (test_vecenv_custom_calls), the wrappers' render_mode (test_render), and
+    VecVideoRecorder under PPO (test_video_recorder)."""
+    from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize, VecVideoRecorder
+
+    env = ParkingVecEnv(3, render_mode="rgb_array", render_envs=3, max_episode_steps=30)
+    normalised = VecNormalize(env)
+    normalised.seed(3)
+    first = env.reset()
+    normalised.seed(3)
+    np.testing.assert_array_equal(env.reset(), first)
+    env.seed()
+    obs = env.reset()
+    assert not np.allclose(obs[0], obs[1]) and not np.allclose(obs[1], obs[2])
+    np.testing.assert_array_equal(env.render(mode="rgb_array"), env.render())
+    with pytest.warns(UserWarning):
+        assert env.render(mode="something_else") is None
+    assert VecFrameStack(env, 2).render_mode == VecNormalize(env).render_mode == "rgb_array"
+    recorder = VecVideoRecorder(VecNormalize(env), str(tmp_path), video_length=10,
+                                record_video_trigger=lambda step: step == 0, name_prefix="lot")
+    PPO("MlpPolicy", recorder, n_steps=32, n_epochs=1, device="cpu").learn(96)
+    recorder.close()
+    assert [p.name for p in tmp_path.glob("*.mp4")] == ["lot-step-0-to-step-10.mp4"]

@@ -311,13 +311,25 @@ class ParkingVectorEnv(VectorEnv):
         self.env = _make_batched(num_envs, occupancy, device, seed, compile_step,
                                  config, aids, max_episode_steps, fields)
         self.num_envs = num_envs
-        self.render_envs = min(render_envs, num_envs)
+        self.render_envs = render_envs
         self.single_observation_space, self.single_action_space, self._scale = _spaces(
             self.env, check_flag(physical_actions, "physical_actions"))
         self.observation_space = gymnasium.vector.utils.batch_space(
             self.single_observation_space, num_envs)
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, num_envs)
         self._td: TensorDictBase | None = None
+
+    @property
+    def render_envs(self) -> int:
+        """How many lots ``render()`` pictures (the first ones): an int >= 1, at most
+        ``num_envs`` (a larger one is taken as ``num_envs``)."""
+        return self._render_envs
+
+    @render_envs.setter
+    def render_envs(self, value: int) -> None:
+        if not is_integer(value) or value < 1:
+            raise ValueError(f"render_envs must be an int >= 1, got {value!r}")
+        self._render_envs = min(int(value), self.num_envs)
 
     def reset(self, *, seed: int | list[int] | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:

@@ -150,12 +150,7 @@ class ParkingVecEnv(VecEnv):
         if attr_name not in SETTABLE:
             raise AttributeError(f"set_attr can set {list(SETTABLE)} of the batch, not "
                                  f"{attr_name!r} (it would be taken by nothing)")
-        if attr_name == "render_envs":
-            if not is_integer(value) or not 1 <= value <= self.num_envs:
-                raise ValueError(f"render_envs must be an int in [1, {self.num_envs}], got "
-                                 f"{value!r}")
-            value = int(value)
-        setattr(self.venv, attr_name, value)
+        setattr(self.venv, attr_name, value)  # checked by the batch's own setter
 
     def env_method(self, method_name: str, *method_args: Any, indices: VecEnvIndices = None,
                    **method_kwargs: Any) -> list[Any]:
