@@ -76,6 +76,17 @@ def test_predict_takes_a_batch_and_names_what_it_needs():
     assert not np.array_equal(sampled, actions) and np.abs(sampled).max() <= 1
 
 
+def test_predict_refuses_what_it_would_misread():
+    agent = load_agent(str(CHECKPOINTS[0]))
+    obs, info = agent.gym_env(seed=0).reset()
+    with pytest.raises(ValueError, match="observation must be a real array"):
+        agent.predict(obs.astype(np.complex64), info)  # its imaginary part would be dropped
+    with pytest.raises(ValueError, match="observation must be finite"):
+        agent.predict(np.full_like(obs, np.nan), info)
+    with pytest.raises(TypeError, match="deterministic must be a bool"):
+        agent.predict(obs, info, deterministic="no")
+
+
 def rows_predict_as_alone(agent, going_obs, fresh_obs, info, state):
     """A batch of two rows, the first going on from ``state``, the second flagged by
     episode_start as a new episode's first (both at ``info``'s position): each row's action

@@ -17,7 +17,9 @@ Stable-Baselines3 ask for, mapped linearly onto the paper's (v, delta) =
 (u0 * max_speed m/s, u1 * max_steer rad), i.e. +-5 m/s and +-0.785 rad. With
 ``physical_actions=True`` the action Box is the paper's own [-5, 5] m/s x [-0.785, 0.785] rad.
 Actions must lie in the action Box and be finite (ValueError otherwise): the torchrl env clamps
-out-of-range actions, a Gymnasium env states its bounds instead. Observations are the paper's
+out-of-range actions, a Gymnasium env states its bounds instead. Real arrays of any width are
+taken (float64 ones, numpy's default, rounded to float32); a complex, string or object array,
+which ``action_space.contains`` refuses too, is refused. Observations are the paper's
 23 floats (see :class:`ParkingEnv`).
 """
 
@@ -114,7 +116,7 @@ def _checked_actions(actions: Any, space: spaces.Box, shape: tuple[int, ...],
         raise ValueError(f"action must be an array of shape {shape} = [v m/s, delta rad], "
                          f"got None")
     given = np.asarray(actions)
-    if given.dtype.kind not in "fiu":  # a complex part dropped, a string parsed: refused
+    if given.dtype.kind not in "biuf":  # as action_space.contains: no complex, no string
         raise ValueError(f"action must be a real array of shape {shape} = [v m/s, delta rad], "
                          f"got dtype {given.dtype}")
     array = given.astype(np.float32)

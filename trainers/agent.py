@@ -37,6 +37,7 @@ from torchrl.modules import ProbabilisticActor
 
 from torchpark import ENV_ID, AidsConfig, GearTravelFeatures, ParkingConfig, ScanMemory
 from torchpark.aids.step import BRAKED
+from torchpark.config import check_flag
 from torchpark.sim.observation import SPEED
 from torchpark.sim.vehicle import gear_travel
 from trainers.checkpoint import load_trained, load_weights
@@ -102,11 +103,18 @@ class TrainedAgent:
         then the remembered scans, flattened), None at an episode's first observation, and,
         as SB3 does, ``episode_start`` (B,) bool for the rows whose observation is a new
         episode's first (every row when ``state`` is None)."""
-        obs = torch.as_tensor(np.asarray(observation, np.float32))
+        given = np.asarray(observation)
         dim = self._inputs.base_env.obs_dim
+        if given.dtype.kind not in "iuf":
+            raise ValueError(f"observation must be a real array of shape ({dim},) or (B, {dim}), "
+                             f"got dtype {given.dtype}")
+        obs = torch.as_tensor(given.astype(np.float32))
         if obs.dim() not in (1, 2) or obs.shape[-1] != dim:
             raise ValueError(f"observation must have shape ({dim},) or (B, {dim}) (the "
                              f"paper's observation), got {tuple(obs.shape)}")
+        if not bool(torch.isfinite(obs).all()):
+            raise ValueError("observation must be finite (no NaN or inf)")
+        deterministic = check_flag(deterministic, "deterministic")
         single = obs.dim() == 1
         batch = obs.reshape(-1, dim).to(self.config.env.device)
         td = TensorDict({"observation": batch}, batch_size=batch.shape[:1],
