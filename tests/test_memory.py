@@ -49,3 +49,19 @@ def test_a_planner_grid_larger_than_memory_is_refused_before_it_is_built(monkeyp
                                               r"grid of 1,019,068,800 cells needs about"):
         build_planner(layout, cfg.vehicle, PlannerConfig(cell=0.01))
     assert not allocated
+
+
+def test_the_demo_says_an_out_of_memory_while_stepping_in_one_line(monkeypatch, capsys):
+    """The estimate is no guarantee: an allocation that fails while stepping is one line."""
+    import torchpark.__main__ as cli
+
+    def exhausted(env, steps):
+        raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 24.00 GiB")
+
+    monkeypatch.setattr(cli, "drive", exhausted)
+    with pytest.raises(SystemExit) as refused:
+        demo(["--eager", "--num-envs", "8"])
+    err = capsys.readouterr().err
+    assert refused.value.code == 2 and "Traceback" not in err
+    assert err.startswith("python -m torchpark: error: --num-envs 8 ran out of memory while "
+                          "stepping (CUDA out of memory."), err

@@ -39,6 +39,7 @@ from torchpark import (
     SlotGaps,
 )
 from torchpark.aids.step import BRAKED
+from torchpark.env import MAX_BLOCKS_AHEAD
 from torchpark.transforms.sync_free import SyncFreeEnv, SyncFreeRewardScaling, SyncFreeVecNorm
 from trainers.config import ModelConfig, TrainConfig, env_configs
 from trainers.heads import BinnedGearHead
@@ -135,13 +136,15 @@ def make_base_env(cfg: TrainConfig, training: bool, num_envs: int | None = None,
                   seed: int | None = None) -> ParkingEnv:
     """The run's ParkingEnv: its task and aids from :func:`trainers.config.env_configs`.
     Where it resets inside its step (CUDA), the host reads it back once per collector batch:
-    ``blocks_ahead`` is the batch's env steps."""
+    ``blocks_ahead`` is the batch's env steps (at most the env's MAX_BLOCKS_AHEAD, 256: a
+    longer batch reads every 256 steps)."""
     config, aids = env_configs(cfg, training)
     steps = cfg.collector.frames_per_batch // (cfg.env.num_envs * cfg.agent.aids.action_repeat)
     return ParkingEnv(cfg.env.num_envs if num_envs is None else num_envs,
                       device=cfg.env.device, seed=cfg.seed if seed is None else seed,
                       config=config, aids=aids, compile_step=cfg.env.compile_step and training,
-                      reset_in_step=cfg.env.reset_in_step, blocks_ahead=max(1, steps))
+                      reset_in_step=cfg.env.reset_in_step,
+                      blocks_ahead=min(max(1, steps), MAX_BLOCKS_AHEAD))
 
 
 def make_env(cfg: TrainConfig, num_envs: int | None = None, seed: int | None = None,
