@@ -29,13 +29,10 @@ def _seconds(value: object) -> bool:
     return is_number(value) and math.isfinite(value) and value >= 0
 
 
-# The plain entries a checkpoint (or a recipe's state file) may hold, with what each must be.
+# The plain entries a checkpoint (or an SB3 recipe's state.pt) may hold, with what each must be.
 ENTRIES = {
     "frames": (_count, "an int >= 0 (frames trained)"),
-    "iterations_done": (_count, "an int >= 0"),
-    "approach_states": (_count, "an int >= 0"),
     "wall_clock_s": (_seconds, "a finite number of seconds >= 0"),
-    "wall_s": (_seconds, "a finite number of seconds >= 0"),
     "obs_norm": (lambda v: isinstance(v, dict), "a dict (the normaliser's state)"),
     "trained_by": (lambda v: isinstance(v, str), "a str"),
 }
