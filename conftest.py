@@ -1,5 +1,8 @@
 """Loaded by pytest before any test module, for the tests, the notebooks and the README.
 
+The notebooks and the README's blocks are marked ``slow`` (whole workflows, seconds each):
+``python -m pytest -m "not slow"`` is the edit-test loop, the plain command the whole suite.
+
 Inductor's compile cache, one per CPU kernel set: torch keys the C++ it caches by neither,
 so a cache filled under one ``ATEN_CPU_CAPABILITY`` fails to compile under another
 ("at::vec has not been declared"). Set here, before anything imports torchrl (whose import
@@ -10,8 +13,15 @@ import getpass
 import os
 import tempfile
 
+import pytest
 import torch
 
 os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", os.path.join(
     tempfile.gettempdir(),
     f"torchinductor_{getpass.getuser()}_{torch.backends.cpu.get_cpu_capability().lower()}"))
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.path.suffix in (".ipynb", ".md"):
+            item.add_marker(pytest.mark.slow)

@@ -2,7 +2,8 @@
 
 It shares no code with ``torchpark`` beyond reading the lot it is given: collision is a SAT on
 projected corners (not the centre/half-extent form), LIDAR intersects each ray with each box
-edge as a segment (not the slab test), and every loop is a Python loop. It is fed the lot of one
+edge as a segment (not the slab test), and every loop is a Python loop over Python floats
+(numpy only holds what it is given and returns). It is fed the lot of one
 env of a batched ``ParkingEnv`` and stepped with the same actions in the lockstep test; the
 throughput benchmark uses it as the per-env baseline, the way the paper's Gymnasium env steps.
 """
@@ -20,51 +21,60 @@ def _wrap(angle: float) -> float:
     return math.pi if wrapped <= -math.pi else wrapped
 
 
+Point = tuple[float, float]
+Polygon = tuple[Point, Point, Point, Point]
+
+
 def _corners(cx: float, cy: float, heading: float, half_length: float, half_width: float
-             ) -> np.ndarray:
+             ) -> Polygon:
     c, s = math.cos(heading), math.sin(heading)
-    out = []
-    for a, b in ((1, -1), (1, 1), (-1, 1), (-1, -1)):
-        out.append((cx + a * half_length * c - b * half_width * s,
-                    cy + a * half_length * s + b * half_width * c))
-    return np.array(out)
+    return tuple((cx + a * half_length * c - b * half_width * s,
+                  cy + a * half_length * s + b * half_width * c)
+                 for a, b in ((1, -1), (1, 1), (-1, 1), (-1, -1)))
 
 
-def _polygons_touch(p: np.ndarray, q: np.ndarray) -> bool:
-    """SAT on two convex quadrilaterals given by corners (4, 2); touching counts."""
+def _edges(poly: Polygon) -> list[tuple[Point, Point]]:
+    """The four edges (start, end), counter-clockwise."""
+    return [(poly[i], poly[(i + 1) % 4]) for i in range(4)]
+
+
+def _projections(poly: Polygon, ax: float, ay: float) -> list[float]:
+    return [x * ax + y * ay for x, y in poly]
+
+
+def _polygons_touch(p: Polygon, q: Polygon) -> bool:
+    """SAT on two convex quadrilaterals given by corners; touching counts."""
     for poly in (p, q):
-        for i in range(4):
-            edge = poly[(i + 1) % 4] - poly[i]
-            axis = np.array([-edge[1], edge[0]])
-            pp, qq = p @ axis, q @ axis
-            if pp.max() < qq.min() or qq.max() < pp.min():
+        for (x0, y0), (x1, y1) in _edges(poly):
+            ax, ay = -(y1 - y0), x1 - x0
+            pp, qq = _projections(p, ax, ay), _projections(q, ax, ay)
+            if max(pp) < min(qq) or max(qq) < min(pp):
                 return False
     return True
 
 
-def _inside(point: np.ndarray, poly: np.ndarray) -> bool:
+def _inside(point: Point, poly: Polygon) -> bool:
     """Point in a counter-clockwise convex quadrilateral, boundary included."""
-    for i in range(4):
-        a, b = poly[i], poly[(i + 1) % 4]
-        if (b[0] - a[0]) * (point[1] - a[1]) - (b[1] - a[1]) * (point[0] - a[0]) < 0:
+    px, py = point
+    for (ax, ay), (bx, by) in _edges(poly):
+        if (bx - ax) * (py - ay) - (by - ay) * (px - ax) < 0:
             return False
     return True
 
 
-def _ray_hit(origin: np.ndarray, direction: np.ndarray, poly: np.ndarray) -> float:
-    """Distance to the first crossing of the ray with the polygon's edges (inf if none)."""
-    if _inside(origin, poly):
-        return 0.0
+def _ray_hit(origin: Point, direction: Point, edges: list[tuple[Point, Point]]) -> float:
+    """Distance along the ray to its first crossing of the edges (inf if none); the origin
+    lies outside every polygon the edges bound."""
+    (ox, oy), (dx, dy) = origin, direction
     best = math.inf
-    for i in range(4):
-        a, b = poly[i], poly[(i + 1) % 4]
-        e = b - a
-        denom = direction[0] * e[1] - direction[1] * e[0]
+    for (ax, ay), (bx, by) in edges:
+        ex, ey = bx - ax, by - ay
+        denom = dx * ey - dy * ex
         if denom == 0.0:
             continue  # parallel: the adjacent edges give the hit, if any
-        w = a - origin
-        t = (w[0] * e[1] - w[1] * e[0]) / denom
-        u = (w[0] * direction[1] - w[1] * direction[0]) / denom
+        wx, wy = ax - ox, ay - oy
+        t = (wx * ey - wy * ex) / denom
+        u = (wx * dy - wy * dx) / denom
         if t >= 0.0 and 0.0 <= u <= 1.0:
             best = min(best, t)
     return best
@@ -95,6 +105,7 @@ class ReferenceParkingEnv:
                  cfg: ReferenceConfig, speed: float = 0.0, steps: int = 0) -> None:
         self.cfg = cfg
         self.obstacles = [_corners(*map(float, box)) for box in np.asarray(obstacles)]
+        self.edges = [edge for poly in self.obstacles for edge in _edges(poly)]
         self.goal = [float(v) for v in goal]
         self.x, self.y, self.psi = (float(v) for v in pose)
         self.v = float(speed)
@@ -120,23 +131,27 @@ class ReferenceParkingEnv:
                    state.pose[index].double().cpu().numpy(), cfg,
                    speed=float(state.speed[index]), steps=int(state.steps[index]))
 
-    def _ego(self) -> np.ndarray:
+    def _ego(self) -> Polygon:
         cfg = self.cfg
         offset = cfg.length / 2.0 - cfg.rear_overhang
         cx = self.x + offset * math.cos(self.psi)
         cy = self.y + offset * math.sin(self.psi)
         return _corners(cx, cy, self.psi, cfg.length / 2.0, cfg.width / 2.0)
 
+    def _centre(self) -> Point:
+        """The LIDAR's origin: the mean of the car's corners."""
+        ego = self._ego()
+        return sum(x for x, _ in ego) / 4.0, sum(y for _, y in ego) / 4.0
+
     def observation(self) -> np.ndarray:
         cfg = self.cfg
-        ego = self._ego()
-        centre = ego.mean(axis=0)
+        centre = self._centre()
+        inside = any(_inside(centre, poly) for poly in self.obstacles)  # every ray reads 0
         lidar = []
         for k in range(cfg.n_rays):
             angle = self.psi + 2.0 * math.pi * k / cfg.n_rays
-            direction = np.array([math.cos(angle), math.sin(angle)])
-            nearest = min((_ray_hit(centre, direction, poly) for poly in self.obstacles),
-                          default=math.inf)
+            direction = (math.cos(angle), math.sin(angle))
+            nearest = 0.0 if inside else _ray_hit(centre, direction, self.edges)
             lidar.append(min(nearest, cfg.max_range) / cfg.max_range)
         gx, gy, alpha = self.goal
         nav = [gx - self.x, gy - self.y, math.cos(self.psi), math.sin(self.psi), self.v,
@@ -155,16 +170,14 @@ class ReferenceParkingEnv:
         obstacle corner it passes: a ray that grazes a corner hits or misses by a hair, and its
         reading jumps between the corner's distance and whatever lies behind."""
         cfg = self.cfg
-        centre = self._ego().mean(axis=0)
-        corners = np.concatenate(self.obstacles) - centre if self.obstacles else np.zeros((0, 2))
+        ox, oy = self._centre()
+        corners = [(x - ox, y - oy) for poly in self.obstacles for x, y in poly]
         margins = []
         for k in range(cfg.n_rays):
             angle = self.psi + 2.0 * math.pi * k / cfg.n_rays
             c, s = math.cos(angle), math.sin(angle)
-            along = corners @ np.array([c, s])
-            across = np.abs(corners @ np.array([-s, c]))
-            passed = (along >= 0.0) & (along <= cfg.max_range)
-            margins.append(across[passed].min(initial=math.inf))
+            margins.append(min((abs(-x * s + y * c) for x, y in corners
+                                if 0.0 <= x * c + y * s <= cfg.max_range), default=math.inf))
         return np.array(margins)
 
     def contact_margin(self) -> float:
@@ -175,11 +188,11 @@ class ReferenceParkingEnv:
         for poly in self.obstacles:
             gap = -math.inf
             for box in (ego, poly):
-                for i in range(4):
-                    edge = box[(i + 1) % 4] - box[i]
-                    axis = np.array([-edge[1], edge[0]]) / np.hypot(*edge)
-                    pp, qq = ego @ axis, poly @ axis
-                    gap = max(gap, qq.min() - pp.max(), pp.min() - qq.max())
+                for (x0, y0), (x1, y1) in _edges(box):
+                    norm = math.hypot(x1 - x0, y1 - y0)
+                    ax, ay = -(y1 - y0) / norm, (x1 - x0) / norm
+                    pp, qq = _projections(ego, ax, ay), _projections(poly, ax, ay)
+                    gap = max(gap, min(qq) - max(pp), min(pp) - max(qq))
             best = min(best, abs(gap))
         return best
 

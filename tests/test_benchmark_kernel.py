@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from benchmarks.kernel import OPTIONS, KernelState, columns, kernel_step, lidar_env_inner
-from tests.conftest import random_actions
+from tests.conftest import COMPILED_N, SHORT, random_actions
 from torchpark import ParkingConfig, ParkingEnv
 from torchpark.sim.lidar import lidar_scan
 
@@ -25,7 +25,7 @@ def assert_steps_alike(env: ParkingEnv, step, atol: float = 0.0) -> None:
     state = KernelState(sim.pose, sim.goal, sim.steps, sim.present.t().contiguous())
     ended = 0
     for action in random_actions(env.num_envs, 30, 7):
-        aided, out, _ = env._step_fn(aided, action)
+        aided, out, _ = env._guarded_fn(aided, action, env._no_bad_action)  # what step runs
         state, observation, reward, terminated, truncated, cost = step(state, action)
         assert torch.equal(state.pose, aided.sim.pose)
         assert torch.equal(state.steps, aided.sim.steps)
@@ -50,11 +50,10 @@ def test_the_kernel_steps_as_the_env_does(occupancy):
 
 
 def test_the_compiled_kernel_steps_as_the_compiled_env_does():
-    config = ParkingConfig(max_steps=20)
-    env = ParkingEnv(128, seed=5, config=config, compile_step=True)
+    env = ParkingEnv(COMPILED_N, seed=5, config=SHORT, compile_step=True)
     env.reset()
     step = torch.compile(partial(kernel_step, boxes=columns(env.world.obstacles),
-                                 world=env.world, cfg=config), fullgraph=True, options=OPTIONS)
+                                 world=env.world, cfg=SHORT), fullgraph=True, options=OPTIONS)
     assert_steps_alike(env, step, atol=1e-5)
 
 

@@ -13,8 +13,8 @@ from contextlib import contextmanager
 import pytest
 import torch
 
-from tests.conftest import random_actions
-from tests.test_ring import BUSY, assert_same_rollout, rollout
+from tests.conftest import BUSY, random_actions
+from tests.test_ring import assert_same_rollout, rollout
 from torchpark import ParkingEnv
 from trainers.collection import RankCollection
 from trainers.config import load_config

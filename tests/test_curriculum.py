@@ -8,6 +8,7 @@ import torch
 from torchrl.collectors import Collector
 from torchrl.envs import TransformedEnv
 
+from tests.conftest import COMPILED_N, SHORT
 from torchpark import (
     AidsConfig,
     OccupancyCurriculum,
@@ -129,9 +130,9 @@ def test_held_actions_count_as_several_frames():
 
 def test_success_threshold_reaches_a_compiled_step():
     """The compiled step reads the threshold tensor at run time: no stale constant."""
-    env = ParkingEnv(4, seed=0, compile_step=True)
+    env = ParkingEnv(COMPILED_N, seed=0, config=SHORT, compile_step=True)
     env.reset()
-    action = torch.zeros(4, 2)
+    action = torch.zeros(COMPILED_N, 2)
     assert not env.step(env.reset().set("action", action))["next", "success"].any()
     env.success_threshold = 1e4
     assert env.step(env.reset().set("action", action))["next", "success"].all()

@@ -7,6 +7,7 @@ import os
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,8 +17,14 @@ from torchrl.collectors import Collector
 from torchrl.envs import EnvBase, InitTracker, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
-from tests.conftest import act, random_actions
-from tests.test_ring import BUSY, assert_same_rollout, rollout
+from tests.conftest import (
+    COMPILED_BUILDS,
+    COMPILED_N,
+    RING_BUILD,
+    act,
+    random_actions,
+)
+from tests.test_ring import assert_same_rollout, rollout
 from torchpark import (
     AidsConfig,
     BrakeConfig,
@@ -163,27 +170,20 @@ def test_collector_auto_resets_and_keeps_the_extra_keys(device):
     assert batch["is_init"].sum() >= 16
 
 
-@pytest.mark.parametrize("config, aids", [
-    (ParkingConfig(), None),
-    (ParkingConfig(), AidsConfig(near_goal_starts=NearGoalStarts(),
-                                 docking=DockingConfig(lateral=1.0, heading=0.6))),
-    (ParkingConfig(occupancy=0.9), AidsConfig(
-        action_repeat=3, brake=BrakeConfig(steer_clear=5, penalty=-1.0),
-        near_goal_starts=NearGoalStarts(), docking=DockingConfig())),
-    (ParkingConfig(collision_substeps=4), AidsConfig(brake=BrakeConfig(steer_clear=5))),
-], ids=["paper", "docking", "all-aids", "swept-brake"])
+@pytest.mark.parametrize("config, aids", COMPILED_BUILDS.values(), ids=COMPILED_BUILDS.keys())
 def test_compiled_step_is_one_graph_and_matches_eager(config, aids, device):
     """compile_step=True compiles step and reset with fullgraph=True: any graph break raises."""
-    actions = random_actions(64, 40, 9).to(device)
+    actions = random_actions(COMPILED_N, 40, 9).to(device)
     outs = []
     for compiled in (False, True):
-        env = ParkingEnv(64, seed=10, config=config, aids=aids, compile_step=compiled,
+        env = ParkingEnv(COMPILED_N, seed=10, config=config, aids=aids, compile_step=compiled,
                          device=device)
         env.occupancy = 0.6
         td = env.reset()
         seq = []
         for a in actions:
-            td_out, td = env.step_and_maybe_reset(TensorDict({**td, "action": a}, batch_size=[64],
+            td_out, td = env.step_and_maybe_reset(TensorDict({**td, "action": a},
+                                                             batch_size=[COMPILED_N],
                                                              device=device))
             seq.append(td_out["next"].select("observation", "reward", "done", "collision"))
         outs.append(torch.stack(seq))
@@ -227,8 +227,8 @@ def test_a_capturing_compile_mode_keeps_the_compiled_rollout():
     """compile_kwargs={"mode": "reduce-overhead"} (CUDA graphs on CUDA; on a CPU the compiled
     graphs as they are): with every call's outputs copied, the same rollout as the plain
     compiled env, resets inside the step included. On CUDA: tests/test_cuda.py."""
-    plain, captured = (ParkingEnv(16, seed=1, config=BUSY, compile_step=True, reset_in_step=True,
-                                  blocks_ahead=2, compile_kwargs=kwargs)
+    plain, captured = (ParkingEnv(COMPILED_N, seed=1, compile_step=True, compile_kwargs=kwargs,
+                                  **RING_BUILD)
                        for kwargs in (None, {"mode": "reduce-overhead"}))
     assert_same_rollout(rollout(captured, 20, seed=2), rollout(plain, 20, seed=2))
 
@@ -524,14 +524,15 @@ def test_restoring_a_snapshot_replays_the_same_future(aids):
 def test_a_process_builds_as_many_compiled_envs_as_it_likes():
     """torch.compile caches every compiled partial under one wrapper, 8 graphs by default:
     the third compiled env of a fresh process used to fail (fullgraph=True)."""
-    code = ("import torch\nfrom torchpark import AidsConfig, BrakeConfig, ParkingEnv\n"
-            "for i in range(6):\n"
-            "    aids = AidsConfig(brake=BrakeConfig()) if i % 2 else None\n"
-            "    env = ParkingEnv(2 + i, seed=i, aids=aids, compile_step=True)\n"
+    code = ("import torch\nfrom torchpark import ParkingEnv\n"
+            "from tests.conftest import COMPILED_BUILDS, COMPILED_N\n"
+            "for i, (config, aids) in enumerate(COMPILED_BUILDS.values()):\n"
+            "    env = ParkingEnv(COMPILED_N, seed=i, config=config, aids=aids,\n"
+            "                     compile_step=True)\n"
             "    env.reset(); env.rand_step(); env.reset()\n"
             "print('ok', torch._dynamo.config.recompile_limit)\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=600)
+                          timeout=600, cwd=Path(__file__).resolve().parents[1])
     assert done.returncode == 0 and done.stdout.split() == ["ok", "256"], done.stderr[-800:]
 
 

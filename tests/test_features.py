@@ -14,7 +14,7 @@ from tensordict import TensorDict
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
-from tests.reference import _corners, _ray_hit
+from tests.reference import _corners, _edges, _inside, _ray_hit
 from torchpark import (
     ClearanceFeatures,
     GearTravelFeatures,
@@ -81,7 +81,7 @@ def test_box_edge_distance_against_a_ray_cast_from_outside(n_rays, length, width
     edge = box_edge_distance(n_rays, length, width)
     for k in range(n_rays):
         d = np.array([math.cos(2 * math.pi * k / n_rays), math.sin(2 * math.pi * k / n_rays)])
-        expected = 100.0 - _ray_hit(100.0 * d, -d, box)
+        expected = 100.0 - _ray_hit(100.0 * d, -d, _edges(box))
         assert edge[k].item() == pytest.approx(expected, rel=1e-6)
 
 
@@ -295,10 +295,11 @@ def test_slot_gaps_against_a_ray_cast_to_every_other_slot():
     cfg = ParkingConfig(max_steps=30)
     edge = box_edge_distance(16, cfg.vehicle.length, cfg.vehicle.width).double().numpy()
 
-    def cast(centre: np.ndarray, angle: float, goal: int, slots: list) -> float:
-        d = np.array([math.cos(angle), math.sin(angle)])
-        return min([_ray_hit(centre, d, box) for j, box in enumerate(slots) if j != goal]
-                   + [cfg.lidar.max_range])
+    def cast(centre: tuple, angle: float, edges: list, inside: bool) -> float:
+        """The reference's ray cast to the ``edges`` of every slot but the goal's (0 from
+        inside one of them), at most the LIDAR's range."""
+        hit = 0.0 if inside else _ray_hit(centre, (math.cos(angle), math.sin(angle)), edges)
+        return min(hit, cfg.lidar.max_range)
 
     for occupancy in (0.0, 0.9):
         env = ParkingEnv(16, seed=4, config=cfg, aids=AidsConfig(observe_position=True))
@@ -317,12 +318,15 @@ def test_slot_gaps_against_a_ray_cast_to_every_other_slot():
             goal = env.state.goal_slot.tolist()
             for i in range(16):
                 x, y, psi = pose[i]
-                centre = np.array([x, y]) + cfg.vehicle.centre_offset * np.array(
-                    [math.cos(psi), math.sin(psi)])
+                centre = (x + cfg.vehicle.centre_offset * math.cos(psi),
+                          y + cfg.vehicle.centre_offset * math.sin(psi))
+                others = [box for j, box in enumerate(slots) if j != goal[i]]
+                edges = [edge for box in others for edge in _edges(box)]
+                inside = any(_inside(centre, box) for box in others)
                 for k in range(16):
                     angle = psi + 2 * math.pi * k / 16
-                    hit = cast(centre, angle, goal[i], slots)
-                    turned = [cast(centre, angle + t, goal[i], slots) for t in (-1e-6, 1e-6)]
+                    hit = cast(centre, angle, edges, inside)
+                    turned = [cast(centre, angle + t, edges, inside) for t in (-1e-6, 1e-6)]
                     if max(abs(h - hit) for h in turned) > 1e-4:
                         ill_posed += 1
                         continue

@@ -12,8 +12,8 @@ import torch
 from scipy import stats
 from tensordict import TensorDict
 
-from tests.conftest import random_actions
-from torchpark import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts, ParkingEnv
+from tests.conftest import ALL_AIDS, COMPILED_BUILDS, COMPILED_N, random_actions
+from torchpark import AidsConfig, BrakeConfig, NearGoalStarts, ParkingEnv
 from torchpark.sim.layout import start_pose_valid, uniform_poses
 
 
@@ -138,16 +138,14 @@ def test_the_state_is_a_copy_and_tensors_handed_out_are_never_written():
 
 
 @pytest.mark.parametrize("compiled", [False, True], ids=["eager", "compiled"])
-@pytest.mark.parametrize("aids", [None, AidsConfig(action_repeat=2, brake=BrakeConfig(),
-                                                   docking=DockingConfig(),
-                                                   near_goal_starts=NearGoalStarts())],
+@pytest.mark.parametrize("config, aids", [COMPILED_BUILDS["paper"], ALL_AIDS],
                          ids=["paper", "aided"])
-def test_no_two_state_tensors_share_memory(compiled, aids):
+def test_no_two_state_tensors_share_memory(compiled, config, aids):
     """A reset writes the env's state tensors in place: no two of them (nor the episodes
     drawn ahead) may be one buffer, after resets or steps, eager or compiled."""
-    env = ParkingEnv(16, seed=0, aids=aids, compile_step=compiled)
+    env = ParkingEnv(COMPILED_N, seed=0, config=config, aids=aids, compile_step=compiled)
     td = env.reset()
-    for a in random_actions(16, 6, 2):
+    for a in random_actions(COMPILED_N, 6, 2):
         td = env.step_and_maybe_reset(td.set("action", a))[1]
         tensors = [t for t in (*torch.utils._pytree.tree_leaves(env._state),
                                *torch.utils._pytree.tree_leaves(env._ahead),

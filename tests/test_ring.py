@@ -14,7 +14,7 @@ from tensordict import TensorDict
 from torch.utils._python_dispatch import TorchDispatchMode
 from torchrl.envs.utils import check_env_specs
 
-from tests.conftest import random_actions
+from tests.conftest import BUSY, COMPILED_N, RING_BUILD, random_actions
 from torchpark import (
     AidsConfig,
     BrakeConfig,
@@ -26,8 +26,6 @@ from torchpark import (
 from torchpark.env import compiler_found
 from torchpark.sim.ring import Counters, hand_out
 
-# Short episodes in a full lot: rows end every few steps, blocks are spent every few steps.
-BUSY = ParkingConfig(max_steps=7, occupancy=0.9)
 AIDED = AidsConfig(action_repeat=2, brake=BrakeConfig(), docking=DockingConfig(),
                    near_goal_starts=NearGoalStarts())
 
@@ -148,10 +146,9 @@ def test_one_graph_from_action_to_reset_compiles_without_dynamic_shapes():
     config = torch._dynamo.config
     with config.patch(capture_dynamic_output_shape_ops=False, capture_scalar_outputs=False):
         torch._dynamo.reset()
-        ring = ParkingEnv(64, seed=2, config=BUSY, reset_in_step=True, blocks_ahead=3,
-                          compile_step=True)
+        ring = ParkingEnv(COMPILED_N, seed=2, compile_step=True, **RING_BUILD)
         ours = rollout(ring, 40, seed=4)
-    host = ParkingEnv(64, seed=2, config=BUSY, reset_in_step=False, compile_step=True)
+    host = ParkingEnv(COMPILED_N, seed=2, config=BUSY, reset_in_step=False, compile_step=True)
     assert_same_rollout(ours, rollout(host, 40, seed=4))
 
 

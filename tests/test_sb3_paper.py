@@ -10,6 +10,7 @@ import subprocess
 import sys
 import textwrap
 import zipfile
+from functools import partial
 from pathlib import Path
 
 import cloudpickle
@@ -33,12 +34,16 @@ def one_rollout(tmp_path_factory):
 
 
 def test_a_resumed_run_equals_the_uninterrupted_one(tmp_path):
+    """Two rollouts at once, or one, a checkpoint, and the second resumed from it: the same
+    weights, Adam state, env and random states. Compiled: the process's one compile is
+    shared by every run of this module (a fresh process: the kill test below runs eager)."""
     rollout = 2048  # SB3's default n_steps: one rollout
-    whole = train(tmp_path / "whole", 3 * rollout, rollout, 10**9, seed=0, resume_run=False)
-    train(tmp_path / "cut", rollout, rollout, 10**9, seed=0, resume_run=False)
+    run = partial(train, frames_per_level=rollout, every=10**9, seed=0)
+    whole = run(tmp_path / "whole", 2 * rollout, resume_run=False)
+    run(tmp_path / "cut", rollout, resume_run=False)
     assert torch.load(tmp_path / "cut" / STATE, weights_only=True)["frames"] == rollout
-    resumed = train(tmp_path / "cut", 3 * rollout, rollout, 10**9, seed=0, resume_run=True)
-    assert resumed.num_timesteps == whole.num_timesteps == 3 * rollout
+    resumed = run(tmp_path / "cut", 2 * rollout, resume_run=True)
+    assert resumed.num_timesteps == whole.num_timesteps == 2 * rollout
     torch.testing.assert_close(resumed.policy.state_dict(), whole.policy.state_dict(),
                                rtol=0, atol=0)
     torch.testing.assert_close(resumed.policy.optimizer.state_dict(),
@@ -144,7 +149,7 @@ def test_a_run_killed_while_saving_resumes_from_the_previous_checkpoint(one_roll
                     real_write(self, *args, **kwargs)
                     die()
                 zipfile.ZipFile.writestr = dies_in_the_zip
-            main(["--out", {str(out)!r}, "--resume", "--total-frames", "4096"])
+            main(["--out", {str(out)!r}, "--resume", "--total-frames", "4096", "--eager"])
         """)], capture_output=True, text=True, timeout=300, cwd=REPO)
         assert killed.returncode == -9, killed.stderr[-2000:]
         if dying == "state":

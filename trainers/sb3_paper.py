@@ -143,10 +143,10 @@ def load_policy(model: PPO, state: dict, out: Path) -> None:
     model.num_timesteps, model._n_updates = int(state["frames"]), int(state["updates"])
 
 
-def resume(out: Path, seed: int) -> PPO:
+def resume(out: Path, seed: int, compile_step: bool = True) -> PPO:
     """The model saved in ``out``, its env and random state where the run stopped."""
     state = load_state(out)
-    model = new_model(seed, out)
+    model = new_model(seed, out, compile_step)
     load_policy(model, state, out)
     model.get_env().reset()  # the wrappers' order checks; the snapshot then replaces it all
     try:
@@ -162,11 +162,14 @@ def resume(out: Path, seed: int) -> PPO:
 
 
 def train(out: Path, total: int, frames_per_level: int, every: int, seed: int,
-          resume_run: bool) -> PPO:
+          resume_run: bool, compile_step: bool = True) -> PPO:
     """Train (or go on training) the paper's agent; checkpoints and TensorBoard in ``out``
-    (which the command line locks for the run: ``torchpark.files.locked``)."""
+    (which the command line locks for the run: ``torchpark.files.locked``). ``compile_step``
+    False steps the env eager: the same numbers to float32 rounding, without the compile's
+    half minute, which a short run does not earn back."""
     out.mkdir(parents=True, exist_ok=True)
-    model = resume(out, seed) if resume_run else new_model(seed, out)
+    model = (resume(out, seed, compile_step) if resume_run
+             else new_model(seed, out, compile_step))
     remaining = total - model.num_timesteps
     model.learn(remaining, callback=PaperSchedule(out, frames_per_level, every),
                 reset_num_timesteps=not resume_run, tb_log_name="sb3", progress_bar=True)
@@ -203,6 +206,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--evaluate", action="store_true",
                         help="write evaluation.md/.csv for the model in --out")
     parser.add_argument("--episodes", type=int, default=200, help="per level (--evaluate)")
+    parser.add_argument("--eager", action="store_true",
+                        help="step the env eager, not compiled (a short run: the compile "
+                             "takes longer than it saves)")
     args = parser.parse_args(argv)
     run_command(parser, args,
                 ("total_frames", "frames_per_level", "checkpoint_every", "episodes"), run)
@@ -222,7 +228,7 @@ def run(args: argparse.Namespace) -> None:
             return
         torch.set_num_threads(1)  # one core: the machine has two
         train(args.out, args.total_frames, args.frames_per_level, args.checkpoint_every,
-              args.seed, args.resume)
+              args.seed, args.resume, compile_step=not args.eager)
 
 
 if __name__ == "__main__":
