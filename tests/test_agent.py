@@ -39,6 +39,7 @@ def _gym_episode(agent, occupancy: float, seed: int):
     return torch.stack(poses), info
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", CHECKPOINTS, ids=lambda p: p.parent.name)
 def test_load_agent_reproduces_the_evaluators_first_episode(path):
     occupancy, seed = 0.6, 5

@@ -49,6 +49,7 @@ def test_the_kernel_steps_as_the_env_does(occupancy):
                                     world=env.world, cfg=config))
 
 
+@pytest.mark.slow
 def test_the_compiled_kernel_steps_as_the_compiled_env_does():
     env = ParkingEnv(COMPILED_N, seed=5, config=SHORT, compile_step=True)
     env.reset()

@@ -128,6 +128,7 @@ def test_held_actions_count_as_several_frames():
     assert env.transform.phase == 3 and env.base_env.occupancy == PAPER_LEVELS[2]
 
 
+@pytest.mark.slow
 def test_success_threshold_reaches_a_compiled_step():
     """The compiled step reads the threshold tensor at run time: no stale constant."""
     env = ParkingEnv(COMPILED_N, seed=0, config=SHORT, compile_step=True)

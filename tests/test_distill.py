@@ -85,6 +85,7 @@ def teacher_path(tmp_path_factory) -> str:
     return write_checkpoint(tmp_path_factory.mktemp("teacher") / "hybrid.pt", HYBRID)
 
 
+@pytest.mark.slow
 def test_forget_clears_the_aids_state_of_ended_rows(teacher_path):
     paper = ParkingEnv(4, seed=0, config=ParkingConfig(max_steps=200))
     teacher = Teacher(teacher_path, TransformedEnv(paper), planner=COARSE_PLAN)
@@ -95,6 +96,7 @@ def test_forget_clears_the_aids_state_of_ended_rows(teacher_path):
     assert teacher.state.docking_engaged.tolist() == [False, True, False, True]
 
 
+@pytest.mark.slow
 def test_the_planner_teacher_drives_the_planner_then_the_law_in_its_target(teacher_path):
     paper = ParkingEnv(16, seed=3, config=ParkingConfig(occupancy=0.9))
     teacher = Teacher(teacher_path, TransformedEnv(paper), planner=COARSE_PLAN)
@@ -150,6 +152,7 @@ def test_the_inverse_power_map_gives_what_the_map_turns_into_the_control():
     torch.testing.assert_close(td["action"], control, rtol=1e-5, atol=1e-8)
 
 
+@pytest.mark.slow
 def test_approach_poses_lie_in_the_laws_settled_approach_denser_near_the_goal(teacher_path):
     cfg, _ = load_trained(teacher_path)
     law = env_configs(cfg, training=False)[1].docking
@@ -165,6 +168,7 @@ def test_approach_poses_lie_in_the_laws_settled_approach_denser_near_the_goal(te
     assert (error.remaining < 2e-3).float().mean().item() == pytest.approx(0.1, abs=0.02)
 
 
+@pytest.mark.slow
 def test_approach_states_carry_the_laws_forward_control(teacher_path):
     cfg, _ = load_trained(teacher_path)
     law = env_configs(cfg, training=False)[1].docking
@@ -244,6 +248,7 @@ def coarse_planner(monkeypatch):
     monkeypatch.setattr(distill_module, "PlannerConfig", lambda: COARSE_PLAN)
 
 
+@pytest.mark.slow
 def test_a_run_writes_a_policy_alone_the_evaluator_reads(teacher_path, tmp_path, capsys,
                                                          coarse_planner):
     out = tmp_path / "student"
@@ -282,6 +287,7 @@ def test_a_run_writes_a_policy_alone_the_evaluator_reads(teacher_path, tmp_path,
     assert "checkpoint_best.pt exists (3 of the outputs do)" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_student_with_the_clearance_features_and_position_reads_them_everywhere(
         teacher_path, tmp_path, coarse_planner):
     """The rays' clearance and the car's position join the student's input in its rollouts,
@@ -301,6 +307,7 @@ def test_a_student_with_the_clearance_features_and_position_reads_them_everywher
     agent.make_env(2, 0.9, seed=0).rollout(3, agent.policy)
 
 
+@pytest.mark.slow
 def test_a_student_with_the_gear_features_reads_them_everywhere(teacher_path, tmp_path,
                                                                 coarse_planner):
     """The gear and its travel join the student's input (after the clearance, before the
@@ -323,6 +330,7 @@ def test_a_student_with_the_gear_features_reads_them_everywhere(teacher_path, tm
     agent.make_env(2, 0.9, seed=0).rollout(3, agent.policy)
 
 
+@pytest.mark.slow
 def test_a_student_with_a_scan_memory_reads_it_everywhere_and_predicts_with_it(
         teacher_path, tmp_path, coarse_planner):
     """The scan memory joins the student's input (after the gear features, before the
@@ -361,6 +369,7 @@ def test_a_student_with_a_scan_memory_reads_it_everywhere_and_predicts_with_it(
         agent.predict(after_obs, after_info, state=before[:2])
 
 
+@pytest.mark.slow
 def test_a_student_with_the_slot_features_reads_them_everywhere(teacher_path, tmp_path,
                                                                 coarse_planner):
     """The slots' gaps join the student's input (before the position) in its rollouts and
@@ -397,6 +406,7 @@ def test_a_student_with_the_slot_features_reads_them_everywhere(teacher_path, tm
                                atol=0)
 
 
+@pytest.mark.slow
 def test_a_student_with_binned_steering_is_fitted_and_driven_by_its_bins(teacher_path,
                                                                           tmp_path,
                                                                           coarse_planner):
@@ -452,6 +462,7 @@ def test_a_stall_is_a_window_of_one_episode_that_ends_near_where_it_began():
     assert torch.equal(steps_in_stall(positions, goals, done, window=3, travel=1.0), expected)
 
 
+@pytest.mark.slow
 def test_a_rollout_counts_the_steps_to_the_drivers_collisions(teacher_path):
     # A driver that floors it forwards, turning a little, at 90 %: into the parked cars.
     scfg = student_config(teacher_path, DistillConfig())
@@ -490,6 +501,7 @@ def test_a_gear_head_is_scored_on_its_gear_and_that_gears_pair_only():
     assert torch.allclose(imitation_error(wrong, label), torch.full((3,), 4.0))
 
 
+@pytest.mark.slow
 def test_the_students_layers_are_the_teachers_unless_width_or_depth_is_given(teacher_path):
     teacher = load_trained(teacher_path)[0].model.hidden
     sizes = {(width, depth): student_config(teacher_path, DistillConfig(width=width, depth=depth)
@@ -502,6 +514,7 @@ def test_the_students_layers_are_the_teachers_unless_width_or_depth_is_given(tea
     assert [m.out_features for m in linears[:-1]] == [24] * 3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lr_decay", [False, True])
 def test_each_fit_starts_at_lr_and_decays_to_zero_if_asked(teacher_path, lr_decay):
     cfg = DistillConfig(lr=1e-3, lr_decay=lr_decay, batch_size=16)
@@ -537,6 +550,7 @@ def past_the_goal(side: torch.Tensor) -> ParkingEnv:
     return paper
 
 
+@pytest.mark.slow
 def test_with_settle_the_planner_teacher_creeps_back_from_just_past_the_goal(teacher_path):
     paper = past_the_goal(torch.zeros(16))
     speeds = {}
@@ -552,6 +566,7 @@ def test_with_settle_the_planner_teacher_creeps_back_from_just_past_the_goal(tea
     assert moving.sum() >= 8 and (speeds[0.0][moving].abs() > 100 * creep).all()
 
 
+@pytest.mark.slow
 def test_with_retry_the_planner_teacher_backs_out_where_the_test_cannot_pass(teacher_path):
     # half the rows 3 mm to the side (a near miss), half 0.1 mm (fine)
     paper = past_the_goal(torch.where(torch.arange(16) % 2 == 0, 3e-3, 1e-4))
@@ -567,6 +582,7 @@ def test_with_retry_the_planner_teacher_backs_out_where_the_test_cannot_pass(tea
     assert (speed[0::2] == -law.max_speed).all()
 
 
+@pytest.mark.slow
 def test_with_a_reverse_margin_the_law_turns_forwards_short_of_contact(teacher_path):
     # cars on their slot's axis 5-6.9 m back, reversing at 1 m/s, at 90 %: the far ones
     # have the lane's other side (a parked car or a wall) close behind
@@ -593,6 +609,7 @@ def test_with_a_reverse_margin_the_law_turns_forwards_short_of_contact(teacher_p
     assert torch.equal(speed[0.5][free], speed[0.0][free])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("wall", "margin"), [(1.0, 1.5), (0.75, 0.8), (1.0, float("nan"))])
 def test_a_reverse_margin_past_the_lots_thinnest_obstacle_is_refused(teacher_path, wall,
                                                                     margin):
@@ -607,6 +624,7 @@ def test_a_reverse_margin_past_the_lots_thinnest_obstacle_is_refused(teacher_pat
 WIDE_PLAN = dataclasses.replace(COARSE_PLAN, law_lateral=2.0, law_heading=1.0)
 
 
+@pytest.mark.slow
 def test_with_a_handover_look_ahead_the_law_takes_over_only_where_it_would_touch_nothing(
         teacher_path):
     # cars 3-7 m behind their goal at 90 %, moving forwards, off the planner's target (0.5 m,
@@ -652,6 +670,7 @@ def test_with_a_handover_look_ahead_the_law_takes_over_only_where_it_would_touch
     assert (law_label[collided] != planner_label[collided]).any(-1).sum() >= 4
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("handover", [-1, 1001, 2.5])
 def test_a_handover_out_of_range_is_refused(teacher_path, handover):
     paper = ParkingEnv(2)
@@ -659,6 +678,7 @@ def test_a_handover_out_of_range_is_refused(teacher_path, handover):
         Teacher(teacher_path, TransformedEnv(paper), planner=WIDE_PLAN, handover=handover)
 
 
+@pytest.mark.slow
 def test_a_resumed_run_gives_the_checkpoints_of_a_run_never_stopped(teacher_path, tmp_path,
                                                                     capsys, coarse_planner):
     flags = ["--envs", "8", "--steps", "12", "--epochs", "2", "--dagger-epochs", "1",
@@ -684,6 +704,7 @@ def test_a_resumed_run_gives_the_checkpoints_of_a_run_never_stopped(teacher_path
     assert table(whole) == table(parts) and len(table(parts)) == 3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("change, error", [
     (["--iterations", "1", "--resume"], "--iterations must be >= 2"),
     (["--iterations", "3", "--resume", "--lr", "0.01"], "has lr=0.001, this command lr=0.01"),
@@ -703,6 +724,7 @@ def test_resuming_refuses_what_would_not_continue_the_run(teacher_path, tmp_path
     assert (out / "dagger_state.pt").read_bytes() == before
 
 
+@pytest.mark.slow
 def test_a_run_saved_before_a_setting_existed_resumes_at_its_default(teacher_path, tmp_path,
                                                                     capsys, coarse_planner):
     flags = ["--envs", "4", "--steps", "4", "--epochs", "1", "--dagger-epochs", "1",
@@ -743,6 +765,7 @@ def test_the_teachers_planner_takes_the_runs_hold_and_target():
                                                   law_heading=0.55)
 
 
+@pytest.mark.slow
 def test_the_teachers_gear_hold_follows_the_car(teacher_path):
     """Labelling states a student drove: every car has just reversed, so the teacher with a
     hold labels what the planner gives when each keeps its gear, where the greedy one
@@ -766,6 +789,7 @@ def test_the_teachers_gear_hold_follows_the_car(teacher_path):
     assert ((greedy > 0) & (kept < 0) & planned).any()  # labels the hold turned back
 
 
+@pytest.mark.slow
 def test_resuming_refuses_another_teacher_or_no_run(teacher_path, tmp_path, capsys,
                                                     coarse_planner):
     flags = ["--envs", "4", "--steps", "4", "--epochs", "1", "--dagger-epochs", "1",

@@ -57,6 +57,7 @@ def run(args: list[str], timeout: float) -> None:
     assert proc.returncode == 0, out[-3000:] + err[-3000:]
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)  # above its two launches of up to 120 s: their own kill fires first
 def test_ddp_takes_the_update_of_one_process_on_the_global_batch(tmp_path):
     # A real batch: the smoke env stepped by the initial policy, with GAE's advantages.
@@ -131,6 +132,7 @@ def test_rank_seeds_are_distinct_and_one_rank_keeps_the_seed():
     assert len(seeds) == 200
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_two_ranks_train_end_to_end_and_resume_on_one(tmp_path):
     run(["-m", "trainers.ppo", "--preset", "smoke", "dist.world_size=2",
@@ -199,6 +201,7 @@ def backends() -> list:
     return ["process", "rpc", ray_param]
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 @pytest.mark.parametrize("backend", backends())
 def test_collector_workers(backend):

@@ -165,6 +165,7 @@ def test_reset_releases_the_layer():
     assert env.aid_state.docking_engaged.tolist() == [False] * 3 + [True] * 5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("box, brake, steer_clear, occupancy, floor", [
     ((0.1, 0.1), False, 0, 0.0, 0.95),  # the paper's env: no brake
     ((2.5, 1.6), True, 0, 0.0, 0.85),   # multi-point turns, the brake telling it where to turn

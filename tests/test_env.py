@@ -170,6 +170,7 @@ def test_collector_auto_resets_and_keeps_the_extra_keys(device):
     assert batch["is_init"].sum() >= 16
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("config, aids", COMPILED_BUILDS.values(), ids=COMPILED_BUILDS.keys())
 def test_compiled_step_is_one_graph_and_matches_eager(config, aids, device):
     """compile_step=True compiles step and reset with fullgraph=True: any graph break raises."""
@@ -223,6 +224,7 @@ def test_the_compile_modes_that_replay_cuda_graphs_are_told_apart(kwargs, captur
     ParkingEnv(2, compile_step=True, compile_kwargs=kwargs)  # builds (compiles on first use)
 
 
+@pytest.mark.slow
 def test_a_capturing_compile_mode_keeps_the_compiled_rollout():
     """compile_kwargs={"mode": "reduce-overhead"} (CUDA graphs on CUDA; on a CPU the compiled
     graphs as they are): with every call's outputs copied, the same rollout as the plain
@@ -233,6 +235,7 @@ def test_a_capturing_compile_mode_keeps_the_compiled_rollout():
     assert_same_rollout(rollout(captured, 20, seed=2), rollout(plain, 20, seed=2))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("aids", [None, AidsConfig(action_repeat=2, brake=BrakeConfig(),
                                                    docking=DockingConfig(),
                                                    observe_position=True)],
@@ -351,6 +354,7 @@ IMPOSSIBLE = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("config, name", IMPOSSIBLE, ids=["huge-car", "infinite-margin"])
 def test_an_impossible_lot_fails_fast_naming_the_config(config, name):
     """In a subprocess with a timeout: a sampling loop without a bound would hang."""
@@ -521,6 +525,7 @@ def test_restoring_a_snapshot_replays_the_same_future(aids):
         env.restore({**saved, "observation": saved["observation"][:3]})
 
 
+@pytest.mark.slow
 def test_a_process_builds_as_many_compiled_envs_as_it_likes():
     """torch.compile caches every compiled partial under one wrapper, 8 graphs by default:
     the third compiled env of a fresh process used to fail (fullgraph=True)."""

@@ -43,6 +43,7 @@ def test_draws_over_seeds_and_levels(seed, occupancy, layout, config):
     assert ((x >= 0) & (x <= layout.width) & (y >= 0) & (y <= layout.height)).all()
 
 
+@pytest.mark.slow
 def test_goals_and_parked_slots_are_spread_uniformly():
     env = ParkingEnv(20_000, seed=3)
     env.occupancy = 0.5

@@ -284,6 +284,7 @@ def test_scan_memory_without_history_and_bad_arguments():
         tenv.transform._step(TensorDict({}, [2]), tenv.base_env.reset())
 
 
+@pytest.mark.slow
 def test_slot_gaps_against_a_ray_cast_to_every_other_slot():
     """Random driving in an empty lot and a full one, episodes ending along the way: after
     every step each ray's feature is the gap from the car's box to the nearest slot

@@ -48,6 +48,7 @@ def test_a_writer_that_fails_leaves_the_previous_file_and_no_temporary(tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["table.md"]
 
 
+@pytest.mark.slow
 def test_sigkill_in_the_middle_of_a_write_leaves_the_previous_file_whole(tmp_path):
     path = tmp_path / "checkpoint.pt"
     save_torch({"weights": torch.arange(10)}, path)
@@ -73,6 +74,7 @@ def test_sigkill_in_the_middle_of_a_write_leaves_the_previous_file_whole(tmp_pat
         assert stale_temporaries(tmp_path) == []
 
 
+@pytest.mark.slow
 def test_a_full_disk_is_one_line_naming_the_file_and_leaves_the_previous_file(tmp_path):
     path = tmp_path / "checkpoint.pt"
     save_torch({"weights": torch.arange(10)}, path)
@@ -98,6 +100,7 @@ def test_a_full_disk_is_one_line_naming_the_file_and_leaves_the_previous_file(tm
     assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.pt"]
 
 
+@pytest.mark.slow
 def test_a_directory_is_locked_by_one_process_until_it_ends(tmp_path):
     holder = subprocess.Popen(
         [sys.executable, "-c", textwrap.dedent(f"""

@@ -58,6 +58,7 @@ def test_corners_match_shapely_area_and_orientation():
         assert poly.symmetric_difference(polygon(box)).area < 1e-9
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_overlap_agrees_with_shapely_on_random_and_near_touching_pairs(dtype):
     rng = np.random.default_rng(1)

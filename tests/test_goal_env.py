@@ -60,6 +60,7 @@ def _success_transition(env):
     return obs["achieved_goal"], obs["desired_goal"], info, reward
 
 
+@pytest.mark.slow
 def test_compute_reward_is_the_envs_reward_on_real_transitions():
     env, rows = _transitions(occupancy=0.9, steps=600, seed=2)
     rows.append(_success_transition(env))
@@ -122,6 +123,7 @@ def test_every_compute_checks_the_goals_shapes():
     assert env.compute_truncated(here, here, info).shape == ()
 
 
+@pytest.mark.slow
 def test_her_replay_buffer_samples_relabelled_goals_with_their_rewards():
     from stable_baselines3 import SAC, HerReplayBuffer
 

@@ -263,6 +263,7 @@ def test_registration_is_idempotent():
     assert ENV_ID in gymnasium.registry
 
 
+@pytest.mark.slow
 def test_record_video_wrapper_writes_an_episode(tmp_path):
     from gymnasium.wrappers import RecordVideo  # writes with moviepy, a dev dependency
 
@@ -279,6 +280,7 @@ def test_record_video_wrapper_writes_an_episode(tmp_path):
     assert [p.suffix for p in folder.iterdir()] == [".mp4"]
 
 
+@pytest.mark.slow
 def test_stable_baselines3_ppo_trains_on_the_env():
     """The paper's own tool chain: SB3 PPO on torchpark/Parking-v0 for a few thousand steps."""
     from stable_baselines3 import PPO

@@ -86,6 +86,7 @@ def fitted_steer(binned: bool) -> float:
     return u[0, 2].item()
 
 
+@pytest.mark.slow
 def test_a_fit_keeps_the_likelier_of_two_angles_where_a_regression_averages_them():
     assert fitted_steer(binned=True) == pytest.approx(-1.0, abs=1e-3)
     assert fitted_steer(binned=False) == pytest.approx(-0.2, abs=0.05)

@@ -81,6 +81,7 @@ def test_the_rule_catches_absolute_and_relative_offenders(tmp_path):
     assert offending(fake, RULES["aids"], tmp_path) == ["torchpark.media", "trainers.utils"]
 
 
+@pytest.mark.slow
 def test_importing_torchpark_loads_no_picture_or_training_library():
     code = ("import sys, torchpark\n"
             "heavy = [m for m in ('PIL', 'imageio', 'matplotlib', 'tensorboard', 'omegaconf', "

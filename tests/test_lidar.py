@@ -11,6 +11,7 @@ from torchpark.sim.geometry import OrientedBoxes, oriented_boxes, ray_box_distan
 from torchpark.sim.lidar import lidar_scan, line_rotation
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n_rays", [16, 12, 7, 4, 2, 1])
 def test_scan_matches_per_ray_loop(n_rays, layout):
     gen = torch.Generator().manual_seed(0)

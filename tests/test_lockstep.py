@@ -90,6 +90,7 @@ def flags_ill_posed(ref: ReferenceParkingEnv, excused: Excused) -> bool:
     return ill
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("occupancy, seed", [(0.9, 0), (0.4, 1)])
 def test_batched_env_matches_reference_in_lockstep(occupancy, seed, device):
     env = ParkingEnv(N, seed=seed, config=ParkingConfig(max_steps=MAX_STEPS), device=device)

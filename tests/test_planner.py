@@ -38,6 +38,7 @@ def planner(layout, config):
     return build_planner(layout, config.vehicle, COARSE)
 
 
+@pytest.mark.slow
 def test_arcs_are_the_bicycle_integrated_finely():
     gen = torch.Generator().manual_seed(0)
     pose = torch.rand(64, 3, generator=gen, dtype=torch.float64) * torch.tensor(
@@ -91,6 +92,7 @@ def test_free_cells_match_a_shapely_oracle(layout, config):
     assert checked > 350 and free.any() and not free.all()
 
 
+@pytest.mark.slow
 def test_paths_down_the_cost_to_go_reach_the_target_and_keep_off_the_other_slots(
         planner, layout, config):
     """From a cell clear of the other slots with a clear path (cheaper than one arc onto a
@@ -146,6 +148,7 @@ def test_paths_down_the_cost_to_go_reach_the_target_and_keep_off_the_other_slots
     assert started_on_slot > 10
 
 
+@pytest.mark.slow
 def test_plan_control_drives_at_the_planner_speed_with_its_angles(planner, layout):
     pose = grid_poses(planner.grid, "cpu")[::997]
     n = pose.shape[0]
@@ -157,6 +160,7 @@ def test_plan_control_drives_at_the_planner_speed_with_its_angles(planner, layou
     assert (v != 0).any() and (cost[v == 0] >= 500).all()
 
 
+@pytest.mark.slow
 def test_a_kept_gear_is_the_cars_wherever_a_look_ahead_in_it_is_open(planner, layout):
     pose = grid_poses(planner.grid, "cpu")[::97]
     n = pose.shape[0]
@@ -174,6 +178,7 @@ def test_a_kept_gear_is_the_cars_wherever_a_look_ahead_in_it_is_open(planner, la
         assert (kept[other] * moving > 0).any()
 
 
+@pytest.mark.slow
 def test_with_a_car_margin_no_arc_taken_brings_the_grown_box_onto_a_parked_car(planner):
     # cars near the lanes' edges at 90 %: the control reads only slots, so some of its arcs
     # end with the box grown by 0.3 m on a parked car it was clear of; with the margin none do
@@ -251,6 +256,7 @@ def test_the_laws_funnel_is_the_target_unless_widened():
     assert (only.reach, only.lateral, only.heading) == (7.0, 2.0, 0.25)
 
 
+@pytest.mark.slow
 def test_the_expert_is_evaluated_like_a_checkpoint(tmp_path, capsys):
     """PlannerExpert drives an env built with its aids (any other is refused by name), and
     the evaluator runs it on its lots; its command line refuses what does not apply."""

@@ -56,6 +56,7 @@ def rejection_starts(env: ParkingEnv, count: int, seed: int) -> torch.Tensor:
     return torch.cat(found)[:count]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("share", [0.003, 0.1])
 def test_partial_resets_draw_the_specs_lots(share):
     goals, parked, poses, env = partial_reset_lots(seed=4, lots=12_000, share=share)
@@ -80,6 +81,7 @@ def test_partial_resets_draw_the_specs_lots(share):
     assert start_pose_valid(poses, env.layout.slots_and_walls, env.config.vehicle).all()
 
 
+@pytest.mark.slow
 def test_no_two_resets_hand_out_the_same_lot():
     *_, poses, env = partial_reset_lots(seed=6, lots=20_000, share=0.01)
     # Continuous start poses: two equal rows would be one lot handed out twice.
@@ -137,6 +139,7 @@ def test_the_state_is_a_copy_and_tensors_handed_out_are_never_written():
     assert all(torch.equal(a, b) for a, b in zip(kept_state[1:], list(state)[1:], strict=True))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("compiled", [False, True], ids=["eager", "compiled"])
 @pytest.mark.parametrize("config, aids", [COMPILED_BUILDS["paper"], ALL_AIDS],
                          ids=["paper", "aided"])

@@ -77,6 +77,7 @@ def assert_same_rollout(ours: list, theirs: list) -> None:
                                            msg=f"step {step}, {key}")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("aids", [None, AIDED], ids=["paper", "aided"])
 @pytest.mark.parametrize("blocks_ahead", [1, 4])
 def test_the_rollout_is_the_host_paths(aids, blocks_ahead):
@@ -139,6 +140,7 @@ def test_a_partial_reset_is_the_host_paths():
             assert torch.equal(a[key], b[key]), key
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not compiler_found(), reason="torch.compile needs a C++ compiler")
 def test_one_graph_from_action_to_reset_compiles_without_dynamic_shapes():
     """The step and the reset of its ended rows compile as one graph (fullgraph=True) with no
@@ -194,6 +196,7 @@ def host_reads(env: ParkingEnv, steps: int, monkeypatch) -> int:
         return count()
 
 
+@pytest.mark.slow
 def test_the_host_reads_back_once_every_blocks_ahead_steps(monkeypatch):
     steps = 48
     ring = ParkingEnv(32, seed=1, config=BUSY, reset_in_step=True, blocks_ahead=8)

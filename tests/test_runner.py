@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import pytest
 import torch
 from torchrl.envs import TransformedEnv
 
@@ -90,6 +91,7 @@ def test_docked_counts_the_episodes_the_docking_layer_drove():
     assert torch.equal(docked.docked, started_in_funnel) and 0 < int(started_in_funnel.sum()) < 32
 
 
+@pytest.mark.slow
 def test_a_looser_success_test_ends_the_same_trajectory_where_the_cost_first_fell_below_it():
     """Two envs on the same lots and starts (3-5 m behind the goal, off the axis), the docking
     law driving with actions held 3 steps of dt: one with the paper's test, one with 4e-2. The
@@ -126,6 +128,7 @@ def test_a_looser_success_test_ends_the_same_trajectory_where_the_cost_first_fel
     assert torch.equal(first_below, loose_success)
 
 
+@pytest.mark.slow
 def test_the_runner_reports_each_threshold_and_the_tightest_is_the_envs_success():
     near = NearGoalStarts(probability=1.0, lateral=0.5, heading=0.3)
     env = ParkingEnv(32, seed=1, config=ParkingConfig(max_steps=400),

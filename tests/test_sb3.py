@@ -154,6 +154,7 @@ def test_step_none_names_the_actions_and_seed_draws_one():
         env.seed(-1)
 
 
+@pytest.mark.slow
 def test_sb3s_wrappers_and_ppo_run_on_it():
     env = VecMonitor(VecCheckNan(ParkingVecEnv(16, seed=0, max_episode_steps=20),
                                  raise_exception=True))

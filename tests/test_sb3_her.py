@@ -19,6 +19,7 @@ def short_run(tmp_path_factory):
     return out, model
 
 
+@pytest.mark.slow
 def test_a_run_climbs_the_levels_and_saves_its_policy(short_run):
     out, model = short_run
     state = torch.load(out / STATE, weights_only=True)
@@ -29,6 +30,7 @@ def test_a_run_climbs_the_levels_and_saves_its_policy(short_run):
     assert model.replay_buffer.copy_info_dict  # the reward's collision term needs the infos
 
 
+@pytest.mark.slow
 def test_the_evaluation_is_the_three_threshold_table_of_a_policy_alone(short_run):
     out, _ = short_run
     rows = evaluate(out, episodes=3, seed=1)
@@ -38,6 +40,7 @@ def test_the_evaluation_is_the_three_threshold_table_of_a_policy_alone(short_run
     assert rows[0]["policy"].startswith("SAC + HER (Stable-Baselines3")
 
 
+@pytest.mark.slow
 def test_the_command_line_refuses_what_would_hurt(short_run, tmp_path, capsys):
     out, _ = short_run
     for argv, message in (
@@ -50,6 +53,7 @@ def test_the_command_line_refuses_what_would_hurt(short_run, tmp_path, capsys):
         assert message in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("field", "value"), [("frames", None), ("frames", "many"),
                                               ("wall_clock_s", "x")])
 def test_the_evaluation_names_the_file_and_the_field_of_a_crafted_state(

@@ -33,6 +33,7 @@ def one_rollout(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_a_resumed_run_equals_the_uninterrupted_one(tmp_path):
     """Two rollouts at once, or one, a checkpoint, and the second resumed from it: the same
     weights, Adam state, env and random states. Compiled: the process's one compile is
@@ -54,6 +55,7 @@ def test_a_resumed_run_equals_the_uninterrupted_one(tmp_path):
     torch.testing.assert_close(a, b, rtol=0, atol=0)  # env snapshot, last obs, both RNGs
 
 
+@pytest.mark.slow
 def test_the_evaluation_is_the_three_threshold_table_of_a_policy_alone(one_rollout):
     assert (one_rollout / MODEL).exists()
     rows = evaluate(one_rollout, episodes=4, seed=1)
@@ -92,6 +94,7 @@ class _Payload:
         return (Path.write_text, (self.marker, "code ran"))
 
 
+@pytest.mark.slow
 def test_a_crafted_model_zip_runs_no_code(one_rollout, tmp_path):
     """SB3's PPO.load unpickles the zip's serialised entries (and so runs a payload); the
     script reads its checkpoint from state.pt (weights_only) and never reads model.zip."""
@@ -120,6 +123,7 @@ def test_a_crafted_model_zip_runs_no_code(one_rollout, tmp_path):
     assert marker.read_text() == "code ran"  # SB3's own loader runs it: the test can fail
 
 
+@pytest.mark.slow
 def test_a_run_killed_while_saving_resumes_from_the_previous_checkpoint(one_rollout,
                                                                          tmp_path):
     """SIGKILL half way through writing state.pt, then half way through the model.zip export
@@ -158,6 +162,7 @@ def test_a_run_killed_while_saving_resumes_from_the_previous_checkpoint(one_roll
     assert torch.load(out / STATE, weights_only=True)["frames"] == 4096
 
 
+@pytest.mark.slow
 def test_a_directory_in_use_is_refused(one_rollout, capsys):
     with locked(one_rollout, "--out"):
         with pytest.raises(SystemExit) as refused:

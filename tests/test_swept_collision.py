@@ -155,6 +155,7 @@ def verdict(cases: Cases, substeps: int) -> tuple[torch.Tensor, torch.Tensor]:
     return move(cases.pose, cases.action[:, 0], cases.action[:, 1], present, env.world, cfg)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("substeps", [1, 4, 8])
 def test_substeps_catch_every_contact_deeper_than_the_bound_and_invent_none(cases, substeps):
     cfg = ParkingConfig(collision_substeps=substeps)
@@ -174,6 +175,7 @@ def test_substeps_catch_every_contact_deeper_than_the_bound_and_invent_none(case
         assert (contact & ~hit).sum() >= 20
 
 
+@pytest.mark.slow
 def test_more_substeps_report_the_same_collisions_and_more(cases):
     """K poses per step include the end pose, and those of every divisor of K."""
     verdicts = [verdict(cases, substeps)[1] for substeps in (1, 2, 8, 64)]
@@ -182,6 +184,7 @@ def test_more_substeps_report_the_same_collisions_and_more(cases):
     assert (verdicts[-1] & ~verdicts[0]).sum() >= 20
 
 
+@pytest.mark.slow
 def test_a_contact_between_two_end_poses_ends_the_episode_with_substeps(cases):
     """Steps whose car touches a parked car only between its start and end poses (found by
     the reference, deeper than 64 sub-steps can miss): the paper's end-pose test lets them

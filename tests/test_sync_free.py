@@ -57,6 +57,7 @@ def test_the_sync_free_path_gives_torchrls_generic_path(monkeypatch, preset, max
         assert (mine == other).all()
 
 
+@pytest.mark.slow
 def test_the_training_collector_reads_back_once_per_batch(monkeypatch):
     """RankCollection's collector over the env resetting in its step, with a policy that reads
     nothing (the trainer's TanhNormal reads its bounds when eager; compiled, it does not:
@@ -87,6 +88,7 @@ def test_the_training_collector_reads_back_once_per_batch(monkeypatch):
     assert min(reads_per_batch()) >= steps
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not compiler_found(), reason="torch.compile needs a C++ compiler")
 def test_the_policy_compiles_whole():
     """The trainer's actor in one graph (fullgraph) with no scalar or data-dependent output

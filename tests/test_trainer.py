@@ -50,6 +50,7 @@ def smoke_run(tmp_path_factory):
     return cfg, train(cfg)
 
 
+@pytest.mark.slow
 def test_smoke_preset_trains_and_logs(smoke_run):
     cfg, final = smoke_run
     run_dir = final.parent
@@ -65,6 +66,7 @@ def test_smoke_preset_trains_and_logs(smoke_run):
     assert (run_dir / "checkpoint_2048.pt").exists()
 
 
+@pytest.mark.slow
 def test_resume_keeps_frames_and_curriculum(smoke_run, tmp_path):
     _, final = smoke_run
     frames = [int(v) for k, v in torch.load(final, weights_only=True)["env"].items()
@@ -77,6 +79,7 @@ def test_resume_keeps_frames_and_curriculum(smoke_run, tmp_path):
     assert [int(v) for k, v in resumed["env"].items() if k.endswith("frames")] == [6144]
 
 
+@pytest.mark.slow
 def test_a_resumed_run_equals_the_uninterrupted_one_bit_for_bit(smoke_run, tmp_path):
     """The smoke run saved a checkpoint half way (2,048 of 4,096 frames); resumed from it in
     another directory, the second half repeats the uninterrupted run exactly: the same
@@ -91,6 +94,7 @@ def test_a_resumed_run_equals_the_uninterrupted_one_bit_for_bit(smoke_run, tmp_p
         torch.testing.assert_close(resumed[key], whole[key], rtol=0, atol=0, msg=key)
 
 
+@pytest.mark.slow
 def test_a_run_started_from_a_checkpoint_begins_with_its_actor_and_statistics(smoke_run,
                                                                               tmp_path):
     """--init: the run's actor is the checkpoint's with its std reset to the run's
@@ -166,6 +170,7 @@ def test_the_recomputed_log_prob_makes_the_first_ratio_one_on_saturated_draws():
     assert loss(td.clone())["kl_approx"].item() == 0.0
 
 
+@pytest.mark.slow
 def test_the_compiled_update_takes_the_eager_updates_steps():
     """optim.compile_update: three PPO updates through torch.compile move the networks as
     the eager ones do (to float32 rounding: inductor sums in another order) and return the
@@ -190,6 +195,7 @@ def test_the_compiled_update_takes_the_eager_updates_steps():
     torch.testing.assert_close(compiled_losses, eager_losses, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_a_start_checkpoint_with_another_agent_or_a_resume_beside_it_is_refused(smoke_run,
                                                                                 tmp_path):
     _, final = smoke_run
@@ -245,6 +251,7 @@ def test_unknown_preset_or_field_is_an_error():
         load_config("smoke", ["agent.slot_features=true"])
 
 
+@pytest.mark.slow
 def test_checkpoint_from_another_config_is_refused(smoke_run, tmp_path):
     _, final = smoke_run
     other = load_config("smoke", ["model.hidden=[32,32]", f"logger.log_dir={tmp_path}"])
@@ -261,6 +268,7 @@ def test_unwritable_log_dir_is_an_error_before_training(tmp_path):
         train(cfg)
 
 
+@pytest.mark.slow
 def test_a_run_directory_in_use_is_refused_unless_overwrite(smoke_run, capsys):
     cfg, final = smoke_run
     before = final.read_bytes()
@@ -276,6 +284,7 @@ def test_a_run_directory_in_use_is_refused_unless_overwrite(smoke_run, capsys):
     main([*argv, "--overwrite"])  # the fixture's run, as it was, for the tests after this
 
 
+@pytest.mark.slow
 def test_evaluation_never_replaces_files_without_overwrite(smoke_run, tmp_path, capsys):
     _, final = smoke_run
     (tmp_path / "evaluation.md").write_text("mine")
@@ -288,6 +297,7 @@ def test_evaluation_never_replaces_files_without_overwrite(smoke_run, tmp_path, 
     assert (tmp_path / "evaluation.md").read_text().startswith("agent: policy alone")
 
 
+@pytest.mark.slow
 def test_evaluation_table_has_the_stated_columns(smoke_run, tmp_path):
     _, final = smoke_run
     evaluate_main([str(final), "--episodes", "6", "--out", str(tmp_path)])
@@ -316,6 +326,7 @@ def test_evaluation_table_has_the_stated_columns(smoke_run, tmp_path):
     assert iio.improps(tmp_path / "rollout_occ90.mp4").shape[1:] == (384, 480, 3)
 
 
+@pytest.mark.slow
 def test_evaluation_puts_a_policy_under_other_aids(smoke_run, tmp_path):
     """--aids: the smoke run's policy alone evaluated as the approach of a hybrid (brake +
     docking law), said so in the table; the same lots as without them."""
@@ -337,6 +348,7 @@ def test_evaluation_puts_a_policy_under_other_aids(smoke_run, tmp_path):
         "agent: hybrid: policy + emergency brake + docking law, added at evaluation")
 
 
+@pytest.mark.slow
 def test_evaluation_with_the_collision_test_along_the_motion_says_so(smoke_run, tmp_path,
                                                                     capsys):
     """--collision-substeps K evaluates the policy with K poses per step of dt tested for
@@ -357,6 +369,7 @@ def test_evaluation_with_the_collision_test_along_the_motion_says_so(smoke_run, 
             capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_evaluators_output_fits_a_terminal(smoke_run, tmp_path, capsys):
     """The command line prints what the agent is made of and the main columns within 100
     columns; the full table goes to the files."""
@@ -371,6 +384,7 @@ def test_the_evaluators_output_fits_a_terminal(smoke_run, tmp_path, capsys):
     assert (tmp_path / "evaluation.md").read_text().count("|") > 17 * 7  # all 17 columns
 
 
+@pytest.mark.slow
 def test_a_sampled_evaluation_is_seeded_and_says_so(smoke_run, tmp_path, capsys):
     """--sample S: the actions are drawn from the policy's distribution, torch seeded with S
     at each level: the same S gives the same row, whichever levels ran before it."""
@@ -391,6 +405,7 @@ def test_a_sampled_evaluation_is_seeded_and_says_so(smoke_run, tmp_path, capsys)
     assert "--sample must be a torch seed >= 0, got -1" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("aids", "message"), [
     (["observe_brake=true"], "--aids takes NAME=VALUE with NAME one of brake, docking"),
     (["action_repeat=5"], "--aids takes NAME=VALUE with NAME one of brake, docking"),
@@ -410,6 +425,7 @@ def test_evaluation_refuses_bad_aids_by_name(smoke_run, tmp_path, capsys, aids, 
     assert not (tmp_path / "evaluation.md").exists()
 
 
+@pytest.mark.slow
 def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     """Every training option off the paper's path at once: held actions, the cubic speed map,
     near-goal starts, the emergency brake, a state-dependent std, a training success
@@ -578,6 +594,7 @@ def _python(code: str, timeout: float = 300) -> subprocess.CompletedProcess:
 REPO = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow
 def test_overwrite_deletes_nothing_before_every_check_has_passed(smoke_run, tmp_path, capsys):
     run, before = _copy_run(smoke_run, tmp_path)
     argv = ["--preset", "smoke", f"logger.log_dir={run.parent}", "--overwrite"]
@@ -599,6 +616,7 @@ def test_overwrite_deletes_nothing_before_every_check_has_passed(smoke_run, tmp_
                                       next(n for n in _contents(run) if n.startswith("events"))]
 
 
+@pytest.mark.slow
 def test_two_runs_started_into_one_directory_the_second_is_refused(tmp_path):
     argv = [sys.executable, "-m", "trainers.ppo", "--preset", "smoke",
             f"logger.log_dir={tmp_path}"]
@@ -624,6 +642,7 @@ def test_two_runs_started_into_one_directory_the_second_is_refused(tmp_path):
                       weights_only=True)["frames"] == 40960
 
 
+@pytest.mark.slow
 def test_a_run_killed_while_rewriting_its_final_checkpoint_leaves_the_previous_one(
         smoke_run, tmp_path):
     """A finished run resumed into its own directory, killed (SIGKILL) half way through
@@ -653,6 +672,7 @@ def test_a_run_killed_while_rewriting_its_final_checkpoint_leaves_the_previous_o
     assert torch.load(final, weights_only=True)["frames"] == 5120
 
 
+@pytest.mark.slow
 def test_a_full_disk_is_one_line_naming_the_file_and_leaves_nothing_half_written(tmp_path):
     limited = _python(f"""
         import resource
@@ -668,6 +688,7 @@ def test_a_full_disk_is_one_line_naming_the_file_and_leaves_nothing_half_written
                   if not p.name.startswith("events")) == [".torchpark.lock"]
 
 
+@pytest.mark.slow
 def test_the_evaluator_prints_its_table_before_a_full_disk_stops_its_files(smoke_run,
                                                                           tmp_path):
     _, final = smoke_run
@@ -688,6 +709,7 @@ def test_the_evaluator_prints_its_table_before_a_full_disk_stops_its_files(smoke
     assert [p.name for p in tmp_path.iterdir()] == [".torchpark.lock"]
 
 
+@pytest.mark.slow
 def test_two_evaluations_into_one_directory_the_second_is_refused(smoke_run, tmp_path, capsys):
     _, final = smoke_run
     with locked(tmp_path, "--out"):
@@ -699,6 +721,7 @@ def test_two_evaluations_into_one_directory_the_second_is_refused(smoke_run, tmp
     assert not (tmp_path / "evaluation.md").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("sections", "message"), [
     ({"model": {"hidden": [32, 32]}}, "its actor does not fit the network its config builds"),
     ({"agent": {"goal_features": 2}}, "agent.goal_features must be true or false, got 2"),
@@ -718,6 +741,7 @@ def test_a_crafted_checkpoint_is_one_line_naming_it(smoke_run, tmp_path, capsys,
     assert not (tmp_path / "eval" / "evaluation.md").exists()
 
 
+@pytest.mark.slow
 def test_a_resumed_checkpoint_whose_weights_do_not_fit_its_config_is_named(smoke_run, tmp_path,
                                                                            capsys):
     _, final = smoke_run
@@ -732,6 +756,7 @@ def test_a_resumed_checkpoint_whose_weights_do_not_fit_its_config_is_named(smoke
         f"ProbabilisticActor:"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("argv", "message"), [
     (["--sample", str(2**70)], "--sample must be a torch seed < 2**32"),
     (["--seed", str(2**32)], "--seed must be an int in [0, 2**32)"),
