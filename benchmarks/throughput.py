@@ -141,7 +141,8 @@ def rollout_call(env: ParkingEnv, args) -> Callable[[], None]:
 def kernel_call(env: ParkingEnv, args) -> Callable[[], None]:
     """One step of the minimal kernel (:mod:`benchmarks.kernel`) on the env's lots, going on
     from the last one's state; compiled with the kernel's inductor options where the env is
-    compiled (without CUDA graphs in every compiled mode)."""
+    compiled (without CUDA graphs in every compiled mode), after its first steps are checked
+    against the eager kernel's (:func:`check_compiled_kernel`)."""
     from benchmarks.kernel import OPTIONS, KernelState, columns, kernel_step
 
     env.reset()
@@ -150,7 +151,9 @@ def kernel_call(env: ParkingEnv, args) -> Callable[[], None]:
     step = partial(kernel_step, boxes=columns(env.world.obstacles), world=env.world,
                    cfg=env.config)
     if env.compiled:
-        step = torch.compile(step, fullgraph=True, options=OPTIONS)
+        compiled = torch.compile(step, fullgraph=True, options=OPTIONS)
+        check_compiled_kernel(compiled, step, state, random_actions(env.num_envs, env.device))
+        step = compiled
     action = random_actions(env.num_envs, env.device, 1)[0]
 
     def call() -> None:
@@ -158,6 +161,25 @@ def kernel_call(env: ParkingEnv, args) -> Callable[[], None]:
         state = step(state, action)[0]
 
     return call
+
+
+def check_compiled_kernel(compiled: Callable, eager: Callable, state, actions) -> None:
+    """The compiled kernel's steps from ``state`` are the eager kernel's (which is the env's
+    step bit for bit: tests/test_benchmark_kernel.py) to the rounding of the compiled
+    trigonometry, end flags equal; RuntimeError if not: no figure is timed for a kernel that
+    computes another step. Checked here rather than in the test suite, where compiling the
+    kernel cost 150 s on two cores for a path only this benchmark runs."""
+    ours = theirs = state
+    for action in actions:
+        ours, *got = compiled(ours, action)
+        theirs, *want = eager(theirs, action)
+        for name, a, b in zip(("pose", "observation", "reward", "terminated", "truncated",
+                               "cost"), (ours.pose, *got), (theirs.pose, *want), strict=True):
+            same = torch.equal(a, b) if a.dtype == torch.bool else \
+                torch.allclose(a, b, rtol=0.0, atol=1e-4)
+            if not same:
+                raise RuntimeError(f"the compiled kernel's {name} is not the eager kernel's")
+        ours = theirs  # each step from the eager state: the rounding does not accumulate
 
 
 def reset_call(share: float) -> Callable[[ParkingEnv, argparse.Namespace], Callable[[], None]]:

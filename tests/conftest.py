@@ -30,25 +30,19 @@ from torchpark.sim.layout import build_layout
 # aids, reset path) reuses the first one's graphs in the same process at no cost, and a new
 # process reads them from inductor's cache in a few seconds. The tests whose subject is the
 # compiled step therefore build these and no others (tests/test_env.py, test_reset.py,
-# test_curriculum.py, test_benchmark_kernel.py, test_ring.py).
+# test_curriculum.py, test_ring.py).
 COMPILED_N = 64
-# The paper's env, short episodes: a 40-step rollout ends episodes by every route.
-SHORT = ParkingConfig(max_steps=20)
-# Every aid at once, in a full lot.
-ALL_AIDS = (ParkingConfig(occupancy=0.9), AidsConfig(
+# Short episodes in a full lot: a 40-step rollout ends episodes by every route; with the
+# reset inside the step, blocks are spent every few steps.
+BUSY = ParkingConfig(max_steps=7, occupancy=0.9)
+# Every aid at once, in a full lot, the collision test along the motion.
+ALL_AIDS = (ParkingConfig(occupancy=0.9, collision_substeps=4), AidsConfig(
     action_repeat=3, brake=BrakeConfig(steer_clear=5, penalty=-1.0),
     near_goal_starts=NearGoalStarts(), docking=DockingConfig()))
-# (config, aids) of the compiled == eager test, by id: the paper's step, every aid (the
-# docking law engages: the test checks), the collision test along the motion with the brake.
-COMPILED_BUILDS = {
-    "paper": (SHORT, None),
-    "all-aids": ALL_AIDS,
-    "swept-brake": (ParkingConfig(collision_substeps=4),
-                    AidsConfig(brake=BrakeConfig(steer_clear=5))),
-}
-# Short episodes in a full lot, the reset inside the step: rows end every few steps, blocks
-# are spent every few steps (tests/test_ring.py, test_env.py's captured path).
-BUSY = ParkingConfig(max_steps=7, occupancy=0.9)
+# (config, aids) of the compiled == eager test, by id: the paper's step; every aid (the
+# docking law engages: the test checks) with the collision test along the motion.
+COMPILED_BUILDS = {"paper": (BUSY, None), "all-aids": ALL_AIDS}
+# The reset inside the step (tests/test_ring.py, test_env.py's captured path).
 RING_BUILD = {"config": BUSY, "reset_in_step": True, "blocks_ahead": 3}
 
 

@@ -8,7 +8,7 @@ import torch
 from torchrl.collectors import Collector
 from torchrl.envs import TransformedEnv
 
-from tests.conftest import COMPILED_N, SHORT
+from tests.conftest import COMPILED_BUILDS, COMPILED_N
 from torchpark import (
     AidsConfig,
     OccupancyCurriculum,
@@ -131,7 +131,7 @@ def test_held_actions_count_as_several_frames():
 @pytest.mark.slow
 def test_success_threshold_reaches_a_compiled_step():
     """The compiled step reads the threshold tensor at run time: no stale constant."""
-    env = ParkingEnv(COMPILED_N, seed=0, config=SHORT, compile_step=True)
+    env = ParkingEnv(COMPILED_N, seed=0, config=COMPILED_BUILDS["paper"][0], compile_step=True)
     env.reset()
     action = torch.zeros(COMPILED_N, 2)
     assert not env.step(env.reset().set("action", action))["next", "success"].any()

@@ -1,6 +1,8 @@
 """The paper's recipe on Stable-Baselines3 (trainers/sb3_paper.py): a run stopped at a
 checkpoint and resumed equals the uninterrupted run exactly, and its evaluation writes the
-three-threshold table with what the agent is made of."""
+three-threshold table with what the agent is made of. Rollouts of 64 frames (the recipe's
+are 2,048: the same code on fewer frames) and the env eager (what compiling gives, to float32
+rounding: tests/test_env.py), so that a run here takes seconds."""
 
 from __future__ import annotations
 
@@ -19,26 +21,37 @@ import torch
 from stable_baselines3 import PPO
 
 from torchpark.files import locked
+from trainers import sb3_paper
 from trainers.evaluate import COLUMNS
-from trainers.sb3_paper import MODEL, STATE, evaluate, main, train
+from trainers.sb3_paper import MODEL, STATE, evaluate, main
 
 REPO = Path(__file__).resolve().parents[1]
+ROLLOUT = 64
+
+
+@pytest.fixture(scope="module", autouse=True)
+def short_rollouts():
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sb3_paper, "ROLLOUT", ROLLOUT)
+        yield
+
+
+train = partial(sb3_paper.train, compile_step=False)
 
 
 @pytest.fixture(scope="module")
 def one_rollout(tmp_path_factory):
-    """A run of one rollout (2,048 frames), its checkpoint written."""
+    """A run of one rollout, its checkpoint written."""
     out = tmp_path_factory.mktemp("sb3")
-    train(out, 2048, 2048, 10**9, seed=0, resume_run=False)
+    train(out, ROLLOUT, ROLLOUT, 10**9, seed=0, resume_run=False)
     return out
 
 
 @pytest.mark.slow
 def test_a_resumed_run_equals_the_uninterrupted_one(tmp_path):
     """Two rollouts at once, or one, a checkpoint, and the second resumed from it: the same
-    weights, Adam state, env and random states. Compiled: the process's one compile is
-    shared by every run of this module (a fresh process: the kill test below runs eager)."""
-    rollout = 2048  # SB3's default n_steps: one rollout
+    weights, Adam state, env and random states."""
+    rollout = ROLLOUT
     run = partial(train, frames_per_level=rollout, every=10**9, seed=0)
     whole = run(tmp_path / "whole", 2 * rollout, resume_run=False)
     run(tmp_path / "cut", rollout, resume_run=False)
@@ -116,9 +129,9 @@ def test_a_crafted_model_zip_runs_no_code(one_rollout, tmp_path):
             crafted.writestr(item, content)
     (out / MODEL).write_bytes(crafted_zip.read_bytes())
     main(["--out", str(out), "--evaluate", "--episodes", "2"])
-    main(["--out", str(out), "--resume", "--total-frames", "4096"])
+    main(["--out", str(out), "--resume", "--total-frames", "128", "--eager"])
     assert not marker.exists()
-    assert torch.load(out / STATE, weights_only=True)["frames"] == 4096
+    assert torch.load(out / STATE, weights_only=True)["frames"] == 128
     PPO.load(crafted_zip, device="cpu")
     assert marker.read_text() == "code ran"  # SB3's own loader runs it: the test can fail
 
@@ -136,7 +149,10 @@ def test_a_run_killed_while_saving_resumes_from_the_previous_checkpoint(one_roll
     for dying in ("state", "model"):
         killed = subprocess.run([sys.executable, "-c", textwrap.dedent(f"""
             import os, pathlib, signal, zipfile
+            from trainers import sb3_paper
             from trainers.sb3_paper import main
+
+            sb3_paper.ROLLOUT = {ROLLOUT}
 
             def die():
                 os.kill(os.getpid(), signal.SIGKILL)
@@ -153,13 +169,13 @@ def test_a_run_killed_while_saving_resumes_from_the_previous_checkpoint(one_roll
                     real_write(self, *args, **kwargs)
                     die()
                 zipfile.ZipFile.writestr = dies_in_the_zip
-            main(["--out", {str(out)!r}, "--resume", "--total-frames", "4096", "--eager"])
+            main(["--out", {str(out)!r}, "--resume", "--total-frames", "128", "--eager"])
         """)], capture_output=True, text=True, timeout=300, cwd=REPO)
         assert killed.returncode == -9, killed.stderr[-2000:]
         if dying == "state":
             assert (out / STATE).read_bytes() == before
-    main(["--out", str(out), "--resume", "--total-frames", "4096"])
-    assert torch.load(out / STATE, weights_only=True)["frames"] == 4096
+    main(["--out", str(out), "--resume", "--total-frames", "128", "--eager"])
+    assert torch.load(out / STATE, weights_only=True)["frames"] == 128
 
 
 @pytest.mark.slow

@@ -186,7 +186,9 @@ def test_the_compiled_update_takes_the_eager_updates_steps():
         update = partial(ppo_step, loss, optim, max_grad_norm=0.5)
         if compiled:
             update = torch.compile(update)
-        losses = torch.stack([update(td[i::3].clone())["loss_objective"] for i in range(3)])
+        # Minibatches of one size, as the trainer's (another size would compile again).
+        losses = torch.stack([update(sample.clone())["loss_objective"]
+                              for sample in td.split(64)[:3]])
         runs.append((start, torch.cat([p.detach().flatten() for p in loss.parameters()]),
                      losses.detach()))
     (start, eager, eager_losses), (_, compiled, compiled_losses) = runs
@@ -618,16 +620,33 @@ def test_overwrite_deletes_nothing_before_every_check_has_passed(smoke_run, tmp_
 
 @pytest.mark.slow
 def test_two_runs_started_into_one_directory_the_second_is_refused(tmp_path):
-    argv = [sys.executable, "-m", "trainers.ppo", "--preset", "smoke",
-            f"logger.log_dir={tmp_path}"]
-    first = subprocess.Popen([*argv, "collector.total_frames=40960"], cwd=REPO,
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    """The first run (held at its first update until the test lets it go on) keeps the
+    directory; the second is refused by name and leaves the first to end whole."""
+    go_on = tmp_path / "go_on"
+    first = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
+        import pathlib, time
+        import trainers.ppo as ppo
+
+        real_step = ppo.ppo_step
+
+        def held(*args, **kwargs):
+            deadline = time.monotonic() + 120
+            while not pathlib.Path({str(go_on)!r}).exists() and time.monotonic() < deadline:
+                time.sleep(0.05)
+            return real_step(*args, **kwargs)
+
+        ppo.ppo_step = held
+        ppo.main(["--preset", "smoke", "logger.log_dir={tmp_path}",
+                  "collector.total_frames=1024"])
+    """)], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 120
         while not list((tmp_path / "smoke").glob("events.out.tfevents.*")):  # it trains
             assert first.poll() is None and time.monotonic() < deadline
             time.sleep(0.1)
-        second = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=300)
+        second = subprocess.run([sys.executable, "-m", "trainers.ppo", "--preset", "smoke",
+                                 f"logger.log_dir={tmp_path}"], cwd=REPO,
+                                capture_output=True, text=True, timeout=300)
         assert first.poll() is None  # the second ended while the first still ran
         assert second.returncode == 2
         assert second.stderr.strip().splitlines()[-1] == (
@@ -635,11 +654,12 @@ def test_two_runs_started_into_one_directory_the_second_is_refused(tmp_path):
             f"in use by another run (it holds .torchpark.lock): wait for it to end, or choose "
             f"another directory")
     finally:
+        go_on.touch()
         _, err = first.communicate(timeout=300)
     assert first.returncode == 0, err[-2000:]
     assert len(list((tmp_path / "smoke").glob("events.out.tfevents.*"))) == 1
     assert torch.load(tmp_path / "smoke" / "checkpoint_final.pt",
-                      weights_only=True)["frames"] == 40960
+                      weights_only=True)["frames"] == 1024
 
 
 @pytest.mark.slow

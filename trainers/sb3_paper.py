@@ -48,6 +48,7 @@ from trainers.checkpoint import load_checkpoint, load_weights
 from trainers.evaluate import evaluate_agent, evaluate_into, run_command, sb3_agent
 
 MODEL, STATE = "model.zip", "state.pt"
+ROLLOUT = 2048  # frames per rollout: SB3's default n_steps, the paper's
 
 
 def make_env(seed: int, compile_step: bool = True) -> gymnasium.Env:
@@ -132,8 +133,8 @@ def load_state(out: Path) -> dict:
 
 def new_model(seed: int, out: Path | None = None, compile_step: bool = True) -> PPO:
     """SB3's PPO with its defaults on the paper's env (TensorBoard logs in ``out``)."""
-    return PPO("MlpPolicy", make_env(seed, compile_step), seed=seed, device="cpu",
-               tensorboard_log=None if out is None else str(out))
+    return PPO("MlpPolicy", make_env(seed, compile_step), n_steps=ROLLOUT, seed=seed,
+               device="cpu", tensorboard_log=None if out is None else str(out))
 
 
 def load_policy(model: PPO, state: dict, out: Path) -> None:
