@@ -1,12 +1,12 @@
 """One rank of tests/test_distributed.py's parity check, started by torchrun:
 
-    python -m torch.distributed.run --standalone --nproc_per_node=2 -m tests.ddp_parity \
-        DIR MODE
+    python -m torch.distributed.run --standalone --nproc_per_node=2 -m tests.ddp_parity DIR
 
 Takes the PPO steps of :func:`steps` on its share of each minibatch of ``DIR/batch.pt``,
-from the networks in ``DIR/init.pt``, and writes its parameters to ``DIR/MODE_rankR.pt``.
-MODE ``ddp``: through ``DistributedDataParallel`` (the trainer's path); ``nosync``: the
-same steps without it (the control: gradients never all-reduced).
+from the networks in ``DIR/init.pt``, in each of two modes, and writes its parameters to
+``DIR/MODE_rankR.pt``. MODE ``ddp``: through ``DistributedDataParallel`` (the trainer's
+path); ``nosync``: the same steps without it (the control: gradients never all-reduced).
+Both in one launch: starting the ranks is most of the time.
 """
 
 from __future__ import annotations
@@ -63,16 +63,17 @@ def load(directory: Path, loss: ClipPPOLoss) -> TensorDict:
 
 
 def main() -> None:
-    directory, mode = Path(sys.argv[1]), sys.argv[2]
+    directory = Path(sys.argv[1])
     world = join(2, "cpu")
-    loss = make_loss()
-    batch = load(directory, loss)
-    # The control differs in one thing: no DDP, so no gradient is all-reduced (the
-    # advantages are still standardised over both ranks).
-    loss_fn = DistributedDataParallel(loss) if mode == "ddp" else loss
-    params = steps(loss, batch, world.rank, world.size, loss_fn)
-    torch.save(params, directory / f"{mode}_rank{world.rank}.pt")
-    del loss_fn  # DDP goes before its process group (trainers.distributed.leave)
+    for mode in ("ddp", "nosync"):
+        loss = make_loss()
+        batch = load(directory, loss)
+        # The control differs in one thing: no DDP, so no gradient is all-reduced (the
+        # advantages are still standardised over both ranks).
+        loss_fn = DistributedDataParallel(loss) if mode == "ddp" else loss
+        params = steps(loss, batch, world.rank, world.size, loss_fn)
+        torch.save(params, directory / f"{mode}_rank{world.rank}.pt")
+        del loss_fn  # DDP goes before its process group (trainers.distributed.leave)
     leave(world)
 
 

@@ -59,7 +59,14 @@ def rejection_starts(env: ParkingEnv, count: int, seed: int) -> torch.Tensor:
 @pytest.mark.slow
 @pytest.mark.parametrize("share", [0.003, 0.1])
 def test_partial_resets_draw_the_specs_lots(share):
-    goals, parked, poses, env = partial_reset_lots(seed=4, lots=12_000, share=share)
+    """Rows reset two at a time (hand-outs that meet the end of the 512 episodes drawn
+    ahead exactly) or 51 at a time (hand-outs across it): every lot handed out once, and
+    the spec's distribution."""
+    goals, parked, poses, env = partial_reset_lots(seed=4, lots=6_000, share=share)
+    # Continuous start poses: two equal rows would be one lot handed out twice, across
+    # many refills of the episodes drawn ahead.
+    assert torch.unique(poses, dim=0).shape[0] == poses.shape[0]
+    assert poses.shape[0] > 10 * env.num_envs
     slots = env.layout.num_slots
     # Goals uniform over the slots (chi-square), never occupied; exactly round(p (S-1)) cars.
     counts = torch.bincount(goals, minlength=slots).numpy()
@@ -79,15 +86,6 @@ def test_partial_resets_draw_the_specs_lots(share):
         assert stats.ks_2samp(poses[:, column].numpy(),
                               reference[:, column].numpy()).pvalue > 1e-3, column
     assert start_pose_valid(poses, env.layout.slots_and_walls, env.config.vehicle).all()
-
-
-@pytest.mark.slow
-def test_no_two_resets_hand_out_the_same_lot():
-    *_, poses, env = partial_reset_lots(seed=6, lots=20_000, share=0.01)
-    # Continuous start poses: two equal rows would be one lot handed out twice.
-    assert torch.unique(poses, dim=0).shape[0] == poses.shape[0]
-    # Many refills happened on the way (N = 512 episodes drawn ahead at a time).
-    assert poses.shape[0] > 20 * env.num_envs
 
 
 def test_a_reset_draws_at_the_occupancy_set_after_episodes_were_drawn_ahead():
