@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import shapely
 import torch
@@ -119,3 +120,12 @@ def polygon(box) -> shapely.Polygon:
     pts = [(cx + a * hl * c - b * hw * s, cy + a * hl * s + b * hw * c)
            for a, b in ((1, -1), (1, 1), (-1, 1), (-1, -1))]
     return shapely.Polygon(pts)
+
+
+def polygons(boxes: np.ndarray) -> np.ndarray:
+    """Boxes (B, 5) as shapely polygons (B,): :func:`polygon`'s corners, array at a time."""
+    cx, cy, h, hl, hw = (boxes[:, k, None].astype(np.float64) for k in range(5))
+    c, s = np.cos(h), np.sin(h)
+    a, b = np.array([1, 1, -1, -1]), np.array([-1, 1, 1, -1])
+    return shapely.polygons(np.stack((cx + a * hl * c - b * hw * s,
+                                      cy + a * hl * s + b * hw * c), axis=-1))

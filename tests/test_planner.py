@@ -47,14 +47,16 @@ def test_arcs_are_the_bicycle_integrated_finely():
     steer = torch.tensor([0.785, 0.785, 0.0, 0.0, -0.4, -0.4], dtype=torch.float64)
     vehicle = VehicleConfig(dt=1e-4)
     ends = arcs(pose, travel, torch.tan(steer) / vehicle.wheelbase)  # (64, 6, 3)
-    for k in range(travel.shape[0]):
-        x = pose.clone()
-        speed = torch.full((64,), travel[k].item() / 1e-4 / 20_000, dtype=torch.float64)
-        for _ in range(20_000):
-            x = bicycle_step(x, speed, steer[k].expand(64), vehicle)
-        assert torch.allclose(ends[:, k, :2], x[:, :2], atol=1e-3)
-        assert torch.allclose(torch.remainder(ends[:, k, 2] - x[:, 2] + math.pi, 2 * math.pi),
-                              torch.full((64,), math.pi, dtype=torch.float64), atol=1e-3)
+    # Every (pose, arc) pair integrated at once: 20,000 steps of 0.1 ms over each arc.
+    x = pose[:, None].expand(64, 6, 3).reshape(-1, 3)
+    speed = (travel / 1e-4 / 20_000).repeat(64)
+    angle = steer.repeat(64)
+    for _ in range(20_000):
+        x = bicycle_step(x, speed, angle, vehicle)
+    x = x.reshape(64, 6, 3)
+    assert torch.allclose(ends[..., :2], x[..., :2], atol=1e-3)
+    assert torch.allclose(torch.remainder(ends[..., 2] - x[..., 2] + math.pi, 2 * math.pi),
+                          torch.full((64, 6), math.pi, dtype=torch.float64), atol=1e-3)
 
 
 def test_cell_index_inverts_grid_poses_and_refuses_off_the_grid(layout):
