@@ -1,8 +1,9 @@
 """The paper's recipe on Stable-Baselines3 (trainers/sb3_paper.py): a run stopped at a
 checkpoint and resumed equals the uninterrupted run exactly, and its evaluation writes the
-three-threshold table with what the agent is made of. Rollouts of 64 frames (the recipe's
-are 2,048: the same code on fewer frames) and the env eager (what compiling gives, to float32
-rounding: tests/test_env.py), so that a run here takes seconds."""
+three-threshold table with what the agent is made of. Rollouts of 512 frames (the recipe's
+are 2,048: the same code on fewer frames; two of them pass the paper's 1,000-step episode, so
+the runs see episodes end) and the env eager (what compiling gives, to float32 rounding:
+tests/test_env.py), so that a run here takes seconds."""
 
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from trainers.evaluate import COLUMNS
 from trainers.sb3_paper import MODEL, STATE, evaluate, main
 
 REPO = Path(__file__).resolve().parents[1]
-ROLLOUT = 64
+ROLLOUT = 512
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -129,9 +130,9 @@ def test_a_crafted_model_zip_runs_no_code(one_rollout, tmp_path):
             crafted.writestr(item, content)
     (out / MODEL).write_bytes(crafted_zip.read_bytes())
     main(["--out", str(out), "--evaluate", "--episodes", "2"])
-    main(["--out", str(out), "--resume", "--total-frames", "128", "--eager"])
+    main(["--out", str(out), "--resume", "--total-frames", str(2 * ROLLOUT), "--eager"])
     assert not marker.exists()
-    assert torch.load(out / STATE, weights_only=True)["frames"] == 128
+    assert torch.load(out / STATE, weights_only=True)["frames"] == 2 * ROLLOUT
     PPO.load(crafted_zip, device="cpu")
     assert marker.read_text() == "code ran"  # SB3's own loader runs it: the test can fail
 
@@ -169,13 +170,14 @@ def test_a_run_killed_while_saving_resumes_from_the_previous_checkpoint(one_roll
                     real_write(self, *args, **kwargs)
                     die()
                 zipfile.ZipFile.writestr = dies_in_the_zip
-            main(["--out", {str(out)!r}, "--resume", "--total-frames", "128", "--eager"])
+            main(["--out", {str(out)!r}, "--resume", "--total-frames", "{2 * ROLLOUT}",
+                  "--eager"])
         """)], capture_output=True, text=True, timeout=300, cwd=REPO)
         assert killed.returncode == -9, killed.stderr[-2000:]
         if dying == "state":
             assert (out / STATE).read_bytes() == before
-    main(["--out", str(out), "--resume", "--total-frames", "128", "--eager"])
-    assert torch.load(out / STATE, weights_only=True)["frames"] == 128
+    main(["--out", str(out), "--resume", "--total-frames", str(2 * ROLLOUT), "--eager"])
+    assert torch.load(out / STATE, weights_only=True)["frames"] == 2 * ROLLOUT
 
 
 @pytest.mark.slow
