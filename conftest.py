@@ -20,6 +20,13 @@ os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", os.path.join(
     tempfile.gettempdir(),
     f"torchinductor_{getpass.getuser()}_{torch.backends.cpu.get_cpu_capability().lower()}"))
 
+# A pytest-xdist worker (``-n``) computes on one thread, as do the processes it starts (they
+# inherit the variable): workers already fill the cores, and two workers' thread pools on
+# two cores spend more time waiting on each other than computing.
+if "PYTEST_XDIST_WORKER" in os.environ:
+    os.environ["OMP_NUM_THREADS"] = "1"
+    torch.set_num_threads(1)
+
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:

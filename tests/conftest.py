@@ -45,6 +45,9 @@ ALL_AIDS = (ParkingConfig(occupancy=0.9, collision_substeps=4), AidsConfig(
 COMPILED_BUILDS = {"paper": (BUSY, None), "all-aids": ALL_AIDS}
 # The reset inside the step (tests/test_ring.py, test_env.py's captured path).
 RING_BUILD = {"config": BUSY, "reset_in_step": True, "blocks_ahead": 3}
+# The tests that compile these builds with inductor share one pytest-xdist worker
+# (``@pytest.mark.xdist_group(COMPILED_GROUP)``), so that each build compiles once a run.
+COMPILED_GROUP = "compiled_builds"
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

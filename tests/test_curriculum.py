@@ -8,7 +8,7 @@ import torch
 from torchrl.collectors import Collector
 from torchrl.envs import TransformedEnv
 
-from tests.conftest import COMPILED_BUILDS, COMPILED_N
+from tests.conftest import COMPILED_BUILDS, COMPILED_GROUP, COMPILED_N
 from torchpark import (
     AidsConfig,
     OccupancyCurriculum,
@@ -128,6 +128,7 @@ def test_held_actions_count_as_several_frames():
     assert env.transform.phase == 3 and env.base_env.occupancy == PAPER_LEVELS[2]
 
 
+@pytest.mark.xdist_group(COMPILED_GROUP)
 @pytest.mark.slow
 def test_success_threshold_reaches_a_compiled_step():
     """The compiled step reads the threshold tensor at run time: no stale constant."""

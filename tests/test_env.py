@@ -19,6 +19,7 @@ from torchrl.envs.utils import check_env_specs
 
 from tests.conftest import (
     COMPILED_BUILDS,
+    COMPILED_GROUP,
     COMPILED_N,
     RING_BUILD,
     act,
@@ -39,7 +40,7 @@ from torchpark import (
 )
 from torchpark.env import _captures, _outputs_owned
 from torchpark.sim.ring import Counters
-from torchpark.sim.step import ParkingState
+from torchpark.sim.state import ParkingState
 
 
 @pytest.mark.parametrize("num_envs", [1, 5])
@@ -171,6 +172,7 @@ def test_collector_auto_resets_and_keeps_the_extra_keys(device):
     assert batch["is_init"].sum() >= 16
 
 
+@pytest.mark.xdist_group(COMPILED_GROUP)
 @pytest.mark.slow
 @pytest.mark.parametrize("config, aids", COMPILED_BUILDS.values(), ids=COMPILED_BUILDS.keys())
 def test_compiled_step_is_one_graph_and_matches_eager(config, aids, device):

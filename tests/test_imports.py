@@ -6,6 +6,7 @@ trainers; ...), and ``import torchpark`` needs none of the extras."""
 from __future__ import annotations
 
 import ast
+import graphlib
 import subprocess
 import sys
 from pathlib import Path
@@ -90,3 +91,38 @@ def test_importing_torchpark_loads_no_picture_or_training_library():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.strip()
     assert out == "[]"
+
+
+def import_graph(package: Path, root: Path) -> dict[str, set[str]]:
+    """Module -> the package's modules it imports, anywhere in the file (inside functions and
+    ``if TYPE_CHECKING:`` too); a package is its ``__init__``."""
+    names = {}
+    for path in package.rglob("*.py"):
+        parts = path.relative_to(root).with_suffix("").parts
+        names[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+
+    def module_of(name: str) -> str | None:  # a name imported from a module is that module
+        while name and name not in names:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    return {module: {found for name in imported_modules(path, root)
+                     if (found := module_of(name)) not in (None, module)}
+            for module, path in names.items()}
+
+
+def test_no_module_imports_one_that_imports_it_back():
+    graphlib.TopologicalSorter(import_graph(PACKAGE, PACKAGE.parent)).prepare()
+
+
+def test_the_circle_check_catches_a_type_only_circle(tmp_path):
+    sim = tmp_path / "torchpark" / "sim"
+    sim.mkdir(parents=True)
+    (sim / "step.py").write_text("from torchpark.sim.observation import observe\n")
+    (sim / "observation.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                                        "    from torchpark.sim.step import ParkingState\n")
+    graph = import_graph(tmp_path / "torchpark", tmp_path)
+    assert graph == {"torchpark.sim.step": {"torchpark.sim.observation"},
+                     "torchpark.sim.observation": {"torchpark.sim.step"}}
+    with pytest.raises(graphlib.CycleError):
+        graphlib.TopologicalSorter(graph).prepare()

@@ -25,7 +25,7 @@ import torch
 
 from torchpark import ParkingConfig, ParkingEnv
 from torchpark.sim.observation import NAV_DIM
-from torchpark.sim.step import ParkingState
+from torchpark.sim.state import ParkingState
 
 from .reference import ReferenceConfig, ReferenceParkingEnv
 

@@ -1,8 +1,9 @@
 """The notebooks are committed with their outputs, from one run top to bottom at full size
-(``jupyter nbconvert --to notebook --execute --inplace notebooks/NAME.ipynb``), so that a
-reader sees the pictures and tables without running them; pytest --nbmake runs them again
-at small sizes (notebooks/conftest.py) without writing them back. Each imports the project's
-code (torchpark, trainers, benchmarks) rather than copying it."""
+(``jupyter nbconvert --to notebook --execute --inplace notebooks/NAME.ipynb``, from the
+``[lab]`` extra), so that a reader sees the pictures and tables without running them;
+pytest --nbmake runs them again at small sizes (notebooks/conftest.py) without writing them
+back. Each imports the project's code (torchpark, trainers, benchmarks) rather than
+copying it."""
 
 from __future__ import annotations
 

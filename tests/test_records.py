@@ -11,7 +11,7 @@ import torch
 
 import torchpark
 from torchpark.sim.records import replace
-from torchpark.sim.step import ParkingState
+from torchpark.sim.state import ParkingState
 
 PACKAGE = Path(torchpark.__file__).parent
 # The modules whose functions the env compiles: the paper's step and the aided one.

@@ -12,7 +12,13 @@ import torch
 from scipy import stats
 from tensordict import TensorDict
 
-from tests.conftest import ALL_AIDS, COMPILED_BUILDS, COMPILED_N, random_actions
+from tests.conftest import (
+    ALL_AIDS,
+    COMPILED_BUILDS,
+    COMPILED_GROUP,
+    COMPILED_N,
+    random_actions,
+)
 from torchpark import AidsConfig, BrakeConfig, NearGoalStarts, ParkingEnv
 from torchpark.sim.layout import start_pose_valid, uniform_poses
 
@@ -137,6 +143,7 @@ def test_the_state_is_a_copy_and_tensors_handed_out_are_never_written():
     assert all(torch.equal(a, b) for a, b in zip(kept_state[1:], list(state)[1:], strict=True))
 
 
+@pytest.mark.xdist_group(COMPILED_GROUP)
 @pytest.mark.slow
 @pytest.mark.parametrize("compiled", [False, True], ids=["eager", "compiled"])
 @pytest.mark.parametrize("config, aids", [COMPILED_BUILDS["paper"], ALL_AIDS],

@@ -14,7 +14,7 @@ from tensordict import TensorDict
 from torch.utils._python_dispatch import TorchDispatchMode
 from torchrl.envs.utils import check_env_specs
 
-from tests.conftest import BUSY, COMPILED_N, RING_BUILD, random_actions
+from tests.conftest import BUSY, COMPILED_GROUP, COMPILED_N, RING_BUILD, random_actions
 from torchpark import (
     AidsConfig,
     BrakeConfig,
@@ -140,6 +140,7 @@ def test_a_partial_reset_is_the_host_paths():
             assert torch.equal(a[key], b[key]), key
 
 
+@pytest.mark.xdist_group(COMPILED_GROUP)
 @pytest.mark.slow
 @pytest.mark.skipif(not compiler_found(), reason="torch.compile needs a C++ compiler")
 def test_one_graph_from_action_to_reset_compiles_without_dynamic_shapes():

@@ -129,7 +129,7 @@ def test_a_crafted_model_zip_runs_no_code(one_rollout, tmp_path):
                 content = json.dumps(data).encode()
             crafted.writestr(item, content)
     (out / MODEL).write_bytes(crafted_zip.read_bytes())
-    main(["--out", str(out), "--evaluate", "--episodes", "2"])
+    main(["--out", str(out), "--evaluate", "--episodes", "1"])
     main(["--out", str(out), "--resume", "--total-frames", str(2 * ROLLOUT), "--eager"])
     assert not marker.exists()
     assert torch.load(out / STATE, weights_only=True)["frames"] == 2 * ROLLOUT

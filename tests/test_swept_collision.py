@@ -40,17 +40,27 @@ def depth(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Penetration depth of convex quadrilaterals p [..., 4, 2] and q [..., 4, 2], metres [...]:
     the least distance either must move to part, over the edge normals of both (negative: they
     are apart by that much)."""
+    # Corner-major copies (4, 2, ...): every operation below is elementwise over the batch.
+    pc, qc = (np.ascontiguousarray(np.moveaxis(poly, (-2, -1), (0, 1))) for poly in (p, q))
     least = np.full(np.broadcast_shapes(p.shape[:-2], q.shape[:-2]), np.inf)
-    for poly in (p, q):
+    for poly in (pc, qc):
         for i in range(4):
-            edge = poly[..., (i + 1) % 4, :] - poly[..., i, :]
-            axis = np.stack((-edge[..., 1], edge[..., 0]), -1)
-            axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
-            pp = (p * axis[..., None, :]).sum(-1)
-            qq = (q * axis[..., None, :]).sum(-1)
-            overlap = np.minimum(pp.max(-1) - qq.min(-1), qq.max(-1) - pp.min(-1))
+            ex, ey = poly[(i + 1) % 4, 0] - poly[i, 0], poly[(i + 1) % 4, 1] - poly[i, 1]
+            norm = np.sqrt(ey * ey + ex * ex)
+            ax, ay = -ey / norm, ex / norm  # the edge's unit normal
+            pp = [pc[k, 0] * ax + pc[k, 1] * ay for k in range(4)]
+            qq = [qc[k, 0] * ax + qc[k, 1] * ay for k in range(4)]
+            overlap = np.minimum(_max4(pp) - _min4(qq), _max4(qq) - _min4(pp))
             least = np.minimum(least, overlap)
     return least
+
+
+def _max4(v: list[np.ndarray]) -> np.ndarray:
+    return np.maximum(np.maximum(v[0], v[1]), np.maximum(v[2], v[3]))
+
+
+def _min4(v: list[np.ndarray]) -> np.ndarray:
+    return np.minimum(np.minimum(v[0], v[1]), np.minimum(v[2], v[3]))
 
 
 def deepest_contact(pose: np.ndarray, v: np.ndarray, delta: np.ndarray, obstacles: np.ndarray,

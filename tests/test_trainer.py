@@ -621,8 +621,10 @@ def test_overwrite_deletes_nothing_before_every_check_has_passed(smoke_run, tmp_
 @pytest.mark.slow
 def test_two_runs_started_into_one_directory_the_second_is_refused(tmp_path):
     """The first run (held at its first update until the test lets it go on) keeps the
-    directory; the second is refused by name and leaves the first to end whole."""
-    go_on = tmp_path / "go_on"
+    directory; the second (started beside it, so that both import at once, and let into
+    ``python -m trainers.ppo`` once the first trains) is refused by name and leaves the first
+    to end whole."""
+    go_on, first_trains = tmp_path / "go_on", tmp_path / "first_trains"
     first = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
         import pathlib, time
         import trainers.ppo as ppo
@@ -639,22 +641,34 @@ def test_two_runs_started_into_one_directory_the_second_is_refused(tmp_path):
         ppo.main(["--preset", "smoke", "logger.log_dir={tmp_path}",
                   "collector.total_frames=1024"])
     """)], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    second = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
+        import pathlib, runpy, sys, time
+        import trainers.ppo
+
+        deadline = time.monotonic() + 120
+        while not pathlib.Path({str(first_trains)!r}).exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        sys.argv = ["trainers.ppo", "--preset", "smoke", "logger.log_dir={tmp_path}"]
+        runpy.run_module("trainers.ppo", run_name="__main__", alter_sys=True)
+    """)], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 120
         while not list((tmp_path / "smoke").glob("events.out.tfevents.*")):  # it trains
             assert first.poll() is None and time.monotonic() < deadline
             time.sleep(0.1)
-        second = subprocess.run([sys.executable, "-m", "trainers.ppo", "--preset", "smoke",
-                                 f"logger.log_dir={tmp_path}"], cwd=REPO,
-                                capture_output=True, text=True, timeout=300)
+        first_trains.touch()
+        _, second_err = second.communicate(timeout=300)
         assert first.poll() is None  # the second ended while the first still ran
         assert second.returncode == 2
-        assert second.stderr.strip().splitlines()[-1] == (
+        assert second_err.strip().splitlines()[-1] == (
             f"python -m trainers.ppo: error: logger.log_dir '{tmp_path / 'smoke'}' is "
             f"in use by another run (it holds .torchpark.lock): wait for it to end, or choose "
             f"another directory")
     finally:
         go_on.touch()
+        if second.poll() is None:  # the test failed before the second ran
+            second.kill()
+            second.communicate()
         _, err = first.communicate(timeout=300)
     assert first.returncode == 0, err[-2000:]
     assert len(list((tmp_path / "smoke").glob("events.out.tfevents.*"))) == 1

@@ -63,7 +63,8 @@ from torchpark.sim.episodes import draw_lots
 from torchpark.sim.layout import build_layout
 from torchpark.sim.observation import observation_dim, observe
 from torchpark.sim.ring import END_FLAGS, Counters, guarded_step, reset_rows, step_and_reset
-from torchpark.sim.step import ParkingState, put_rows_, take_rows
+from torchpark.sim.state import ParkingState
+from torchpark.sim.step import put_rows_, take_rows
 from torchpark.sim.world import World, build_world
 
 # torch.compile keeps the graphs of every compiled partial function in the cache of one

@@ -43,7 +43,7 @@ from torchpark.config import ParkingConfig
 from torchpark.gym_env import GOAL_ENV_ID, ParkingGymEnv
 from torchpark.sim.observation import NAV_DIM
 from torchpark.sim.reward import is_success, parking_cost, parking_reward
-from torchpark.sim.step import ParkingState
+from torchpark.sim.state import ParkingState
 
 __all__ = ["GOAL_ENV_ID", "GOAL_FIELDS", "ParkingGoalEnv", "goal_cost", "goal_observation",
            "goal_reward"]

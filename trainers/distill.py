@@ -113,7 +113,8 @@ from torchpark.files import directory_arg, locked, save_torch, write_csv
 from torchpark.runner import FREEZE_DISTANCE, FREEZE_STEPS, run_episodes
 from torchpark.sim.geometry import wrap_angle
 from torchpark.sim.layout import build_layout
-from torchpark.sim.step import ParkingState, move
+from torchpark.sim.state import ParkingState
+from torchpark.sim.step import move
 from torchpark.transforms.actions import (
     GearActionMap,
     PowerActionMap,

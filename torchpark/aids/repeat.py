@@ -13,7 +13,8 @@ import torch
 from torch import Tensor
 
 from torchpark.sim.records import replace
-from torchpark.sim.step import StepResult, mux_rows
+from torchpark.sim.state import StepResult
+from torchpark.sim.step import mux_rows
 
 StepFn = Callable[..., tuple[tuple, StepResult, Tensor]]
 

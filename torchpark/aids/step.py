@@ -21,15 +21,8 @@ from torchpark.config import ParkingConfig
 from torchpark.sim.episodes import LotDraw
 from torchpark.sim.observation import observe
 from torchpark.sim.records import replace
-from torchpark.sim.step import (
-    ParkingState,
-    StepResult,
-    commit,
-    move,
-    new_episodes,
-    new_lots,
-    parking_step,
-)
+from torchpark.sim.state import ParkingState, StepResult
+from torchpark.sim.step import commit, move, new_episodes, new_lots, parking_step
 from torchpark.sim.vehicle import clamp_action
 from torchpark.sim.world import World
 

@@ -40,7 +40,7 @@ from torchpark.experts.config import ExpertConfig, PlannerConfig
 from torchpark.memory import check_fits
 from torchpark.sim.geometry import OrientedBoxes, oriented_boxes, separation, wrap_angle
 from torchpark.sim.layout import LotLayout, build_layout
-from torchpark.sim.step import ParkingState
+from torchpark.sim.state import ParkingState
 from torchpark.sim.vehicle import gear_travel, vehicle_obb
 from torchpark.sim.world import World, touches_obstacle
 

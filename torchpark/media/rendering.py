@@ -18,7 +18,7 @@ from torchpark.sim.geometry import box_corners
 from torchpark.sim.layout import LotLayout
 from torchpark.sim.lidar import ray_angles
 from torchpark.sim.observation import NAV_DIM
-from torchpark.sim.step import ParkingState
+from torchpark.sim.state import ParkingState
 from torchpark.sim.vehicle import vehicle_boxes
 
 ASPHALT = (52, 54, 60)

@@ -2,19 +2,15 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import torch
 from torch import Tensor
 
 from torchpark.config import ParkingConfig
 from torchpark.sim.lidar import lidar_scan
 from torchpark.sim.reward import parking_cost
+from torchpark.sim.state import ParkingState
 from torchpark.sim.vehicle import vehicle_obb
 from torchpark.sim.world import World
-
-if TYPE_CHECKING:
-    from torchpark.sim.step import ParkingState
 
 # The observation's first features, in order (dx, dy: goal minus rear axle, world frame, m;
 # psi: the vehicle's heading; v: m/s; alpha: the goal's heading); the LIDAR's n_rays

@@ -23,7 +23,8 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from torchpark.sim.step import StepResult, mux_rows, take_rows
+from torchpark.sim.state import StepResult
+from torchpark.sim.step import mux_rows, take_rows
 
 # What a reset reports for every row, all False: (N, 1) bool each.
 END_FLAGS = ("success", "collision", "done", "terminated", "truncated")
