@@ -298,7 +298,7 @@ def measure(num_envs: int, device: str, mode: str, paths: list[str], args
     collector; resets/s for a reset), low, seconds per call, and on CUDA bytes per env and
     host syncs per call. One env (one compilation) for every path but the collector."""
     cuda = device.startswith("cuda")
-    torch._dynamo.reset()  # every size compiled on its own, with static shapes
+    torch.compiler.reset()  # every size compiled on its own, with static shapes
     if cuda:
         torch.cuda.empty_cache()
         torch.cuda.reset_peak_memory_stats()

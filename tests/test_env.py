@@ -38,7 +38,7 @@ from torchpark import (
     RewardConfig,
     VehicleConfig,
 )
-from torchpark.env import _captures, _outputs_owned
+from torchpark.compiling import captures, outputs_owned
 from torchpark.sim.ring import Counters
 from torchpark.sim.state import ParkingState
 
@@ -210,7 +210,7 @@ def test_a_captured_functions_outputs_are_copied_whole():
         return returned[-1]
 
     x = torch.arange(4.0)
-    got = _outputs_owned(function)(x)
+    got = outputs_owned(function)(x)
     (counters, twice, word), (counters0, twice0, _) = got, returned[0]
     assert type(counters) is Counters and word == "kept" and set(twice) == {"twice"}
     for copy, original in ((counters.block, counters0.block), (counters.used, counters0.used),
@@ -218,12 +218,12 @@ def test_a_captured_functions_outputs_are_copied_whole():
         assert torch.equal(copy, original) and copy.data_ptr() != original.data_ptr()
 
 
-@pytest.mark.parametrize("kwargs, captures", [
+@pytest.mark.parametrize("kwargs, replays", [
     ({}, False), ({"mode": "default"}, False), ({"options": None}, False),
     ({"mode": "reduce-overhead"}, True), ({"mode": "max-autotune"}, True),
     ({"options": {"triton.cudagraphs": True}}, True)])
-def test_the_compile_modes_that_replay_cuda_graphs_are_told_apart(kwargs, captures):
-    assert _captures(kwargs) is captures
+def test_the_compile_modes_that_replay_cuda_graphs_are_told_apart(kwargs, replays):
+    assert captures(kwargs) is replays
     ParkingEnv(2, compile_step=True, compile_kwargs=kwargs)  # builds (compiles on first use)
 
 
@@ -235,7 +235,7 @@ def test_a_capturing_compile_mode_keeps_the_rollout():
     mode) traces the same functions without inductor's minute; inductor's graphs are the
     compiled == eager test's, the CUDA graphs' replay tests/test_cuda.py's."""
     kwargs = {"backend": "eager", "mode": "reduce-overhead"}
-    assert _captures(kwargs)
+    assert captures(kwargs)
     plain = ParkingEnv(COMPILED_N, seed=1, **RING_BUILD)
     captured = ParkingEnv(COMPILED_N, seed=1, compile_step=True, compile_kwargs=kwargs,
                           **RING_BUILD)
@@ -664,10 +664,10 @@ def test_without_a_cxx_compiler_a_compiled_env_warns_once_and_runs_eager(capsys)
     from torch._inductor import config as inductor
 
     import torchpark.__main__ as demo
-    from torchpark import env as env_module
+    from torchpark import compiling
 
     with inductor.patch({"cpp.cxx": ("no-such-compiler-for-torchpark",)}):
-        assert not env_module.compiler_found()
+        assert not compiling.compiler_found()
         with pytest.warns(RuntimeWarning, match="runs eager: torch.compile needs a C\\+\\+ "
                                                 "compiler and none was found") as caught:
             env = ParkingEnv(4, seed=0, compile_step=True)
@@ -678,5 +678,5 @@ def test_without_a_cxx_compiler_a_compiled_env_warns_once_and_runs_eager(capsys)
     out = capsys.readouterr().out
     assert "no C++ compiler found (install g++ or set CXX): the step runs eager" in out
     assert "compiling" not in out
-    assert env_module.compiler_found() == bool(shutil.which("g++") or shutil.which("clang++")
+    assert compiling.compiler_found() == bool(shutil.which("g++") or shutil.which("clang++")
                                                or os.environ.get("CXX"))

@@ -126,3 +126,58 @@ def test_the_circle_check_catches_a_type_only_circle(tmp_path):
                      "torchpark.sim.observation": {"torchpark.sim.step"}}
     with pytest.raises(graphlib.CycleError):
         graphlib.TopologicalSorter(graph).prepare()
+
+
+# torchrl's private names torchpark uses (torchpark/_compat.py); an override's own
+# ``super().<name>(...)`` is the hook's contract, not a use.
+TORCHRL_PRIVATE = ("_step_mdp", "_post_step_mdp_hooks", "_reset_env_preprocess", "_carrier",
+                   "_maybe_stateful_init")
+
+
+def private_uses(path: Path) -> list[str]:
+    """The private torch / torchrl names a file reaches: imports of a private module
+    (``torch._inductor``, ``torch.utils._pytree``), ``torch._x`` attribute chains, and
+    :data:`TORCHRL_PRIVATE` attributes other than ``super().<name>``."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            modules = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                       else [node.module or ""])
+            found += [m for m in modules if m.split(".")[0] in ("torch", "torchrl", "tensordict")
+                      and any(part.startswith("_") for part in m.split("."))]
+        elif isinstance(node, ast.Attribute):
+            chain, value = [node.attr], node.value
+            while isinstance(value, ast.Attribute):
+                chain.append(value.attr)
+                value = value.value
+            if isinstance(value, ast.Name) and value.id == "torch" and any(
+                    part.startswith("_") and not part.startswith("__") for part in chain):
+                found.append(".".join(["torch", *reversed(chain)]))
+            elif node.attr in TORCHRL_PRIVATE and not (
+                    isinstance(node.value, ast.Call) and isinstance(node.value.func, ast.Name)
+                    and node.value.func.id == "super"):
+                found.append(node.attr)
+    # torch._dynamo.config is walked as itself and as torch._dynamo: the longest chain only
+    return sorted({f for f in found if not any(g.startswith(f + ".") for g in found)})
+
+
+CODE = [path for folder in ("torchpark", "trainers", "benchmarks")
+        for path in sorted((PACKAGE.parent / folder).rglob("*.py"))]
+
+
+@pytest.mark.parametrize("path", CODE, ids=lambda p: str(p.relative_to(PACKAGE.parent)))
+def test_private_torch_and_torchrl_names_are_reached_through_compat_alone(path):
+    if path == PACKAGE / "_compat.py":
+        return
+    assert not private_uses(path), f"use torchpark._compat for {private_uses(path)}"
+
+
+def test_the_private_name_rule_catches_each_form(tmp_path):
+    fake = tmp_path / "fake.py"
+    fake.write_text("import torch\nfrom torch.utils._pytree import tree_map\n"
+                    "import torch._inductor.config\nx = torch._dynamo.config\n"
+                    "y = env._step_mdp(td)\nz = collector._carrier\n"
+                    "def _maybe_stateful_init(self, d):\n    super()._maybe_stateful_init(d)\n"
+                    "w = torch.compiler.reset()\n")
+    assert private_uses(fake) == ["_carrier", "_step_mdp", "torch._dynamo.config",
+                                  "torch._inductor.config", "torch.utils._pytree"]

@@ -23,7 +23,7 @@ from torchpark import (
     ParkingConfig,
     ParkingEnv,
 )
-from torchpark.env import compiler_found
+from torchpark.compiling import compiler_found
 from torchpark.sim.ring import Counters, hand_out
 
 AIDED = AidsConfig(action_repeat=2, brake=BrakeConfig(), docking=DockingConfig(),

@@ -10,6 +10,9 @@ import torch
 from trainers.evaluate import COLUMNS
 from trainers.sb3_her import STATE, evaluate, main, train
 
+# One pytest-xdist worker for the module: its run (short_run, 11 s) is made once.
+pytestmark = pytest.mark.xdist_group("sb3_her")
+
 
 @pytest.fixture(scope="module")
 def short_run(tmp_path_factory):

@@ -13,7 +13,7 @@ from torchrl.envs import RewardScaling, TransformedEnv, VecNormV2
 import trainers.utils
 from tests.conftest import random_actions
 from tests.test_ring import reads_counted
-from torchpark.env import compiler_found
+from torchpark.compiling import compiler_found
 from trainers.collection import RankCollection
 from trainers.config import load_config
 from trainers.distributed import World

@@ -26,15 +26,15 @@ import dataclasses
 import math
 import warnings
 from collections.abc import Callable, Sequence
-from functools import partial, wraps
+from functools import partial
 
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torch.utils._pytree import tree_flatten, tree_unflatten
 from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from torchpark._compat import post_step_mdp_hooks, step_mdp, tree_flatten
 from torchpark.aids.brake import check_margin, steer_angles
 from torchpark.aids.config import AidsConfig
 from torchpark.aids.repeat import hold
@@ -49,6 +49,7 @@ from torchpark.aids.step import (
     agent_step,
     aided_new_episodes,
 )
+from torchpark.compiling import check_compile_kwargs, compile_all, compiler_found
 from torchpark.config import (
     SEED_LIMIT,
     ParkingConfig,
@@ -67,20 +68,6 @@ from torchpark.sim.state import ParkingState
 from torchpark.sim.step import put_rows_, take_rows
 from torchpark.sim.world import World, build_world
 
-# torch.compile keeps the graphs of every compiled partial function in the cache of one
-# wrapper code object, 8 by default: with three per env, the third compiled env of a process
-# failed (fullgraph=True turns the limit into an error). Each env's graphs are its own.
-_RECOMPILE_LIMIT = 256
-
-
-def _allow_recompiles() -> None:
-    """Raise torch's per-code-object recompile limit to _RECOMPILE_LIMIT (never lower it)."""
-    config = torch._dynamo.config
-    config.recompile_limit = max(config.recompile_limit, _RECOMPILE_LIMIT)
-    config.accumulated_recompile_limit = max(config.accumulated_recompile_limit,
-                                             4 * _RECOMPILE_LIMIT)
-
-
 # With reset_in_step, at most this many blocks of N episodes drawn ahead: a host read every
 # 256 steps costs nothing measurable, and the first reset draws every block.
 MAX_BLOCKS_AHEAD = 256
@@ -88,50 +75,6 @@ MAX_BLOCKS_AHEAD = 256
 # for the paper's lot): 115 eager, 12 compiled, measured as the growth of the process's peak
 # RSS over a reset and three steps of N = 200,000 on a CPU.
 _WORKING_ROWS = {False: 115, True: 12}
-
-# torch.compile modes that replay the graph as a CUDA graph (CUDA Graph Trees).
-_CAPTURING_MODES = ("reduce-overhead", "max-autotune")
-
-
-def _captures(compile_kwargs: dict) -> bool:
-    """Whether ``torch.compile(**compile_kwargs)`` replays its graphs as CUDA graphs."""
-    return (compile_kwargs.get("mode") in _CAPTURING_MODES
-            or bool((compile_kwargs.get("options") or {}).get("triton.cudagraphs")))
-
-
-def _outputs_owned(fn: Callable) -> Callable:
-    """``fn`` (a function compiled to replay as a CUDA graph) with its outputs copied out of
-    the graphs' memory pool after each call: fresh tensors, filled by one
-    ``torch._foreach_copy_``. A replay overwrites the outputs of the last (CUDA Graph Trees
-    expire them), and the env keeps its state and hands its outputs to the caller across
-    calls; every output copied, nothing the env holds lives in the pool."""
-
-    @wraps(fn)
-    def call(*args):
-        torch.compiler.cudagraph_mark_step_begin()
-        leaves, spec = tree_flatten(fn(*args))
-        tensors = [leaf for leaf in leaves if isinstance(leaf, torch.Tensor)]
-        owned = [torch.empty_like(t) for t in tensors]
-        torch._foreach_copy_(owned, tensors)
-        copies = iter(owned)
-        return tree_unflatten([next(copies) if isinstance(leaf, torch.Tensor) else leaf
-                               for leaf in leaves], spec)
-
-    return call
-
-
-def compiler_found() -> bool:
-    """Whether ``torch.compile``'s backend (inductor) finds the C++ compiler it builds its
-    kernels with here (``CXX``, else g++ or clang++ on the path). Without one a compiled step
-    fails at its first call with a long ``InvalidCxxCompiler`` traceback."""
-    try:
-        from torch._inductor import cpp_builder  # torch's own search; private, hence guarded
-
-        cpp_builder.get_cpp_compiler()
-    except Exception:  # InvalidCxxCompiler, or an API that moved: compile nothing
-        return False
-    return True
-
 
 def check_device(device: object, name: str = "device") -> None:
     """ValueError naming ``name`` unless ``device`` is a CPU or CUDA device this machine
@@ -149,48 +92,6 @@ def check_device(device: object, name: str = "device") -> None:
     if parsed.type == "cuda" and (parsed.index or 0) >= count:
         raise ValueError(f"{name} is {device!r}, but torch sees {count or 'no'} CUDA "
                          f"device(s) here")
-
-
-# torch.compile's keywords that an env may be given, with what each takes (torch's own
-# signature); the env needs its step's graphs whole, so the others are not passed on.
-_COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
-
-
-def check_compile_kwargs(kwargs: object) -> dict:
-    """``compile_kwargs`` as a dict for ``torch.compile``, or an error naming the key that
-    does not fit: ``fullgraph``, ``disable`` (bools), ``dynamic`` (a bool or None),
-    ``backend`` (a name or a callable), ``mode`` (one of torch's modes or None) and
-    ``options`` (a dict of inductor options by name, or None)."""
-    if kwargs is None:
-        return {}
-    if not isinstance(kwargs, dict):
-        raise TypeError(f"compile_kwargs must be a dict or None, got {kwargs!r}")
-    allowed = ("fullgraph", "dynamic", "backend", "mode", "options", "disable")
-    unknown = sorted(str(k) for k in kwargs if k not in allowed)
-    if unknown:
-        raise ValueError(f"compile_kwargs may hold {list(allowed)} (torch.compile's "
-                         f"keywords), got {unknown}")
-    for key in ("fullgraph", "disable"):
-        if key in kwargs:
-            check_flag(kwargs[key], f"compile_kwargs[{key!r}]")
-    if kwargs.get("dynamic") is not None:
-        check_flag(kwargs["dynamic"], "compile_kwargs['dynamic']")
-    backend = kwargs.get("backend")
-    if backend is not None and not (isinstance(backend, str) or callable(backend)):
-        raise TypeError(f"compile_kwargs['backend'] must be a backend's name or a callable, "
-                        f"got {backend!r}")
-    if kwargs.get("mode") is not None and kwargs["mode"] not in _COMPILE_MODES:
-        raise ValueError(f"compile_kwargs['mode'] must be one of {list(_COMPILE_MODES)} or "
-                         f"None, got {kwargs['mode']!r}")
-    options = kwargs.get("options")
-    if options is not None and not (isinstance(options, dict)
-                                    and all(isinstance(k, str) for k in options)):
-        raise TypeError(f"compile_kwargs['options'] must be a dict of inductor options by "
-                        f"name, or None, got {options!r}")
-    if options is not None and kwargs.get("mode") is not None:
-        raise ValueError("compile_kwargs may hold 'mode' or 'options', not both (torch.compile "
-                         "takes one of them)")
-    return dict(kwargs)
 
 
 def _fixed(name: str, doc: str, attribute: str | None = None) -> property:
@@ -273,7 +174,7 @@ class ParkingEnv(EnvBase):
             eager; :attr:`compiled` says which.
         compile_kwargs: passed to ``torch.compile``. With a mode that replays CUDA graphs
             (``mode="reduce-overhead"``) the env copies each replay's outputs out of the
-            graphs' memory (one ``torch._foreach_copy_``), since the next replay overwrites
+            graphs' memory (one foreach copy), since the next replay overwrites
             them.
         validate_actions: raise on non-finite actions. On either reset path a row given a
             non-finite action takes (0, 0) (it stands still: its pose never turns NaN). The
@@ -383,11 +284,7 @@ class ParkingEnv(EnvBase):
         functions = [step, reset, partial(step_and_reset, step, self._fields),
                      partial(reset_rows), partial(guarded_step, step)]
         if compile_step:
-            _allow_recompiles()
-            kwargs = {"fullgraph": True, **compile_kwargs}
-            functions = [torch.compile(f, **kwargs) for f in functions]
-            if _captures(kwargs):
-                functions = [_outputs_owned(f) for f in functions]
+            functions = compile_all(functions, compile_kwargs)
         # The step; the reset's work: N new episodes at a time (lots, start poses, first
         # observations), drawn ahead and handed out in order, each once, to the rows that
         # reset; with reset_in_step, the step and that reset as one function, the reset of a
@@ -915,14 +812,14 @@ class ParkingEnv(EnvBase):
         rollouts and the collectors call), the reset put in as torchrl's generic merge would
         (:func:`_take_reset`): the same tensordicts as the generic path (tested), without its
         ``where`` per key."""
-        if self._post_step_mdp_hooks is not None:  # a hook of torchrl's: its generic path
+        if post_step_mdp_hooks(self) is not None:  # a hook of torchrl's: its generic path
             return super()._step_and_maybe_reset(tensordict)
         if tensordict.device != self.device:
             tensordict = tensordict.to(self.device)
         if self.reset_in_step:
             return self._step_and_reset(tensordict)
         tensordict = self.step(tensordict)
-        tensordict_ = self._step_mdp(tensordict)
+        tensordict_ = step_mdp(self, tensordict)
         # The ended rows: the path's one read-back (their count), where torchrl's reads
         # done.any() and the reset then the rows.
         index = tensordict.get(("next", "done")).reshape(self.num_envs).nonzero()[:, 0]
@@ -943,7 +840,7 @@ class ParkingEnv(EnvBase):
         tensordict, after = self.step_resetting(self.step, tensordict)
         done = tensordict.get(("next", "done")).reshape(self.num_envs)
         rows = done & ~done.all()  # torchrl pads partial resets only
-        tensordict_ = self._step_mdp(tensordict)
+        tensordict_ = step_mdp(self, tensordict)
         _take_reset(tensordict_, after, lambda td: td.masked_fill(rows, 0))
         return tensordict, tensordict_
 

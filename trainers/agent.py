@@ -30,12 +30,12 @@ import gymnasium
 import numpy as np
 import torch
 from tensordict import TensorDict
-from torch.utils._pytree import tree_map_only
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import ProbabilisticActor
 
 from torchpark import ENV_ID, AidsConfig, GearTravelFeatures, ParkingConfig, ScanMemory
+from torchpark._compat import tree_map_only
 from torchpark.aids.step import BRAKED
 from torchpark.config import check_flag
 from torchpark.sim.observation import SPEED

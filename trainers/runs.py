@@ -13,6 +13,7 @@ from typing import NamedTuple
 import torch
 from torchrl.collectors import Collector
 
+from torchpark._compat import collector_carrier
 from torchpark.files import save_torch
 from trainers.checkpoint import EVALUATION_KEYS, RESUME_KEYS, load_checkpoint, load_weights
 from trainers.collection import RankCollection
@@ -60,10 +61,11 @@ def run_state(env, collector: Collector) -> dict:
     collector's carried TensorDict (the next step's input: observation, step counts, episode
     rewards; not the collector's own trajectory ids, bookkeeping PPO does not read) and
     torch's random state (the policy's samples, the minibatch order)."""
-    # The carrier is the collector's private attribute: torchrl 0.14 has no public accessor
-    # and its own load_state_dict starts fresh trajectories (tests/test_trainer.py checks
-    # that a resumed run equals an uninterrupted one, bit for bit).
-    carrier = collector._carrier.exclude("collector")
+    # The carrier is the collector's private attribute (torchpark._compat): torchrl 0.14 has
+    # no public accessor and its own load_state_dict starts fresh trajectories
+    # (tests/test_trainer.py checks that a resumed run equals an uninterrupted one, bit for
+    # bit).
+    carrier = collector_carrier(collector).exclude("collector")
     state = {"sim": env.base_env.snapshot(), "carrier": carrier.to_dict(),
              "rng": torch.get_rng_state()}
     if torch.device(env.device).type == "cuda":
@@ -76,7 +78,7 @@ def resume_state(state: dict, env, collector: Collector) -> None:
     run was (after the collector's own reset, which would otherwise have moved them);
     ``state`` is that rank's :func:`run_state`."""
     env.base_env.restore(state["sim"])
-    carrier = collector._carrier
+    carrier = collector_carrier(collector)
     carrier.update(type(carrier).from_dict(state["carrier"], batch_size=carrier.batch_size,
                                            device=carrier.device))
     torch.set_rng_state(state["rng"])

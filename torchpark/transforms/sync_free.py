@@ -22,6 +22,13 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import RewardScaling, TransformedEnv, VecNormV2
 
+from torchpark._compat import (
+    post_step_mdp_hooks,
+    reset_env_preprocess,
+    step_mdp,
+    transform_reset,
+)
+
 
 class SyncFreeEnv(TransformedEnv):
     """``TransformedEnv`` whose ``step_and_maybe_reset`` (the collectors' and rollouts' path)
@@ -37,13 +44,14 @@ class SyncFreeEnv(TransformedEnv):
         if tensordict.device != self.device:
             tensordict = tensordict.to(self.device)
         tensordict, after = base.step_resetting(self.step, tensordict)
-        tensordict, tensordict_ = self._post_step_mdp_hooks(tensordict, self._step_mdp(tensordict))
+        tensordict, tensordict_ = post_step_mdp_hooks(self)(tensordict, step_mdp(self, tensordict))
         done = tensordict.get(("next", "done")).reshape(self.batch_size)
         # torchrl's reset(select_reset_only=True) of the done rows, every step: the reset
         # request holds the mask alone; the base env's part of the reset is ``after``.
         request = TensorDict({"_reset": done.unsqueeze(-1).clone()}, batch_size=self.batch_size,
                              device=self.device)
-        fresh = self.transform._reset(self.transform._reset_env_preprocess(request), after)
+        fresh = transform_reset(self.transform, reset_env_preprocess(self.transform, request),
+                                after)
         return tensordict, merge_reset(tensordict_, fresh, done)
 
 
