@@ -40,14 +40,13 @@ from torchpark.aids.config import AidsConfig
 from torchpark.aids.repeat import hold
 from torchpark.aids.starts import draw_near
 from torchpark.aids.step import (
-    BRAKE_KEYS,
-    DOCKING_KEYS,
-    INTERVENTIONS,
     AidedState,
     AidState,
     agent_observation,
     agent_step,
     aided_new_episodes,
+    output_keys,
+    output_specs,
 )
 from torchpark.compiling import check_compile_kwargs, compile_all, compiler_found
 from torchpark.config import (
@@ -276,10 +275,7 @@ class ParkingEnv(EnvBase):
                           RuntimeWarning, stacklevel=2)
             compile_step = False
         self._compiled = compile_step  # whether the step and the reset's draw are compiled
-        # The aids' output keys this env emits.
-        self._aid_keys = ((BRAKE_KEYS if agent.brake is not None else ())
-                          + (DOCKING_KEYS if agent.docking is not None else ()))
-        self._fields = partial(output_fields, aid_keys=self._aid_keys,
+        self._fields = partial(output_fields, aid_keys=output_keys(agent),
                                position=agent.observe_position)
         functions = [step, reset, partial(step_and_reset, step, self._fields),
                      partial(reset_rows), partial(guarded_step, step)]
@@ -396,17 +392,13 @@ class ParkingEnv(EnvBase):
         def flag() -> Binary:
             return Binary(n=1, shape=(n, 1), dtype=torch.bool, device=dev)
 
-        aid_specs = {key: Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
-                     if key == INTERVENTIONS else flag() for key in self._aid_keys}
         self.observation_spec = Composite(
             observation=Unbounded(shape=(n, self.obs_dim), dtype=torch.float32, device=dev),
             success=flag(),
             collision=flag(),
             occupancy=Bounded(low=0.0, high=1.0, shape=(n, 1), dtype=torch.float32, device=dev),
             cost=Unbounded(shape=(n, 1), dtype=torch.float32, device=dev),
-            **aid_specs,
-            **({"position": Unbounded(shape=(n, 2), dtype=torch.float32, device=dev)}
-               if self._agent.observe_position else {}),
+            **output_specs(self._agent, n, dev),
             shape=(n,),
             device=dev,
         )
@@ -754,7 +746,7 @@ class ParkingEnv(EnvBase):
         """Which layer drove each row's last step, when the brake or the docking law is on:
         "brake" (it stopped the last step of dt), "docking law" (it has taken over), else
         "policy"; None for the paper's env and a policy alone."""
-        if self._agent.brake is None and self._agent.docking is None:
+        if not output_keys(self._agent):
             return None
         aids = take_rows(self._aids, torch.tensor(indices, device=self.device))
         return ["brake" if braked else "docking law" if docked else "policy"

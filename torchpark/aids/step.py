@@ -12,6 +12,7 @@ from typing import NamedTuple
 
 import torch
 from torch import Tensor
+from torchrl.data import Binary, TensorSpec, Unbounded
 
 from torchpark.aids.brake import apply_brake
 from torchpark.aids.config import AidsConfig
@@ -32,6 +33,27 @@ from torchpark.sim.world import World
 BRAKED, INTERVENTIONS, DOCKING_ENGAGED = "braked", "interventions", "docking_engaged"
 BRAKE_KEYS = (BRAKED, INTERVENTIONS)
 DOCKING_KEYS = (DOCKING_ENGAGED,)
+
+
+def output_keys(aids: AidsConfig) -> tuple[str, ...]:
+    """The aids' per-step outputs (N, 1) an env with ``aids`` emits, read from its
+    :class:`AidState`: the brake's, then the docking law's."""
+    return ((BRAKE_KEYS if aids.brake is not None else ())
+            + (DOCKING_KEYS if aids.docking is not None else ()))
+
+
+def output_specs(aids: AidsConfig, num_envs: int, device: torch.device) -> dict[str, TensorSpec]:
+    """The specs of what ``aids`` adds to an env's observation: :func:`output_keys`
+    ((N, 1) bool flags, the interventions int64) and, with ``observe_position``,
+    ``"position"`` (N, 2) float32 metres."""
+    n = num_envs
+    specs = {key: Unbounded(shape=(n, 1), dtype=torch.int64, device=device)
+             if key == INTERVENTIONS else Binary(n=1, shape=(n, 1), dtype=torch.bool,
+                                                  device=device)
+             for key in output_keys(aids)}
+    if aids.observe_position:
+        specs["position"] = Unbounded(shape=(n, 2), dtype=torch.float32, device=device)
+    return specs
 
 
 class AidState(NamedTuple):
