@@ -12,6 +12,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 from torch.utils._python_dispatch import TorchDispatchMode
+from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
 from tests.conftest import BUSY, COMPILED_GROUP, COMPILED_N, RING_BUILD, random_actions
@@ -20,11 +21,14 @@ from torchpark import (
     BrakeConfig,
     DockingConfig,
     NearGoalStarts,
+    OccupancyCurriculum,
     ParkingConfig,
     ParkingEnv,
 )
 from torchpark.compiling import compiler_found
+from torchpark.curriculum import PAPER_LEVELS
 from torchpark.sim.ring import Counters, hand_out
+from torchpark.transforms.sync_free import SyncFreeEnv
 
 AIDED = AidsConfig(action_repeat=2, brake=BrakeConfig(), docking=DockingConfig(),
                    near_goal_starts=NearGoalStarts())
@@ -125,6 +129,19 @@ def test_a_curriculum_mid_run_keeps_the_host_paths_rollout(aids):
     assert_same_rollout(ours, theirs)
     assert envs[1].occupancy == 0.6 and torch.isfinite(envs[1].state.pose).all()
     assert (envs[0].state.occupancy[envs[0].state.steps < 3] == 0.6).all()  # new lots at 0.6
+
+
+@pytest.mark.parametrize("wrapper", [TransformedEnv, SyncFreeEnv], ids=["torchrl", "sync-free"])
+def test_the_curriculum_transform_keeps_the_host_paths_rollout(wrapper):
+    """OccupancyCurriculum raises the level at the step whose frames reach it: the rows the
+    ring resets inside that step draw the new level's lots, as the host path's reset after
+    the step does (the transform sets the level before each step). Through torchrl's
+    generic step-and-reset and through SyncFreeEnv's, which resets inside the step."""
+    envs = [wrapper(ParkingEnv(16, seed=3, config=BUSY, reset_in_step=ring, blocks_ahead=3),
+                    OccupancyCurriculum(frames_per_level=16 * 25)) for ring in (False, True)]
+    theirs, ours = (rollout(env, 80, seed=1) for env in envs)
+    assert_same_rollout(ours, theirs)
+    assert [env.base_env.occupancy for env in envs] == [PAPER_LEVELS[3]] * 2
 
 
 def test_a_partial_reset_is_the_host_paths():

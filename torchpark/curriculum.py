@@ -50,27 +50,39 @@ class FrameCountingTransform(Transform):
         """Frames stepped through this transform."""
         return self._frames
 
-    def _count(self, next_tensordict: TensorDictBase) -> int:
-        """Add a step's frames; returns the count before them."""
+    def _step_frames(self, tensordict: TensorDictBase) -> int:
+        """The frames one step of this batch counts."""
         container = self.container
         repeat = container.base_env.action_repeat if container is not None else 1
+        return tensordict.numel() * repeat * self.replicas
+
+    def _count(self, next_tensordict: TensorDictBase) -> int:
+        """Add a step's frames; returns the count before them."""
         before = self._frames
-        self._frames += next_tensordict.numel() * repeat * self.replicas
+        self._frames += self._step_frames(next_tensordict)
         self.frames.fill_(self._frames)  # an async fill from a host int: no sync
         return before
 
-    def _push(self) -> None:
+    def _push(self, frames: int) -> None:
+        """Set the base env's value for ``frames`` frames stepped."""
         raise NotImplementedError
 
+    def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
+        # Before each step, the value its frames reach: the rows a ParkingEnv with
+        # reset_in_step resets inside that step then draw the lots the host path's reset
+        # after the step draws (both paths, the same rollout).
+        self._push(self._frames + self._step_frames(tensordict))
+        return super()._inv_call(tensordict)
+
     def _reset_env_preprocess(self, tensordict: TensorDictBase) -> TensorDictBase:
-        self._push()  # before the base env draws its new lots
+        self._push(self._frames)  # before the base env draws its new lots
         return super()._reset_env_preprocess(tensordict)
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
         self._frames = int(self.frames)
         if "_container" in self.__dict__:
-            self._push()
+            self._push(self._frames)
 
 
 class OccupancyCurriculum(FrameCountingTransform):
@@ -109,15 +121,16 @@ class OccupancyCurriculum(FrameCountingTransform):
     def occupancy(self) -> float:
         return self.levels[self.level]
 
-    def _push(self) -> None:
+    def _push(self, frames: int) -> None:
         container = self.container
         if container is not None:
-            container.base_env.occupancy = self.occupancy
+            container.base_env.occupancy = self.levels[
+                level_at(frames, self.frames_per_level, len(self.levels))]
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
               ) -> TensorDictBase:
         self._count(next_tensordict)
-        self._push()
+        self._push(self._frames)
         return next_tensordict
 
     def extra_repr(self) -> str:
