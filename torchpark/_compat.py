@@ -1,11 +1,11 @@
 """Every private torch / torchrl name torchpark touches, each behind one function with why the
-public API does not serve. Checked on torch 2.11-2.13 and torchrl 0.14; moving the version
-pins in ``pyproject.toml`` is this file's work.
+public API does not serve. Checked on torch 2.13.0 and torchrl 0.14.1 (what CI installs);
+moving the version pins in ``pyproject.toml`` is this file's work.
 
 The torchrl hooks our subclasses override must be methods of those classes, so they are only
 named here: ``EnvBase._step_and_maybe_reset`` (:class:`torchpark.ParkingEnv`,
-:class:`torchpark.transforms.sync_free.SyncFreeEnv`), ``Transform._reset_env_preprocess``
-(:mod:`torchpark.curriculum`) and ``VecNormV2._maybe_stateful_init``
+:class:`torchpark.transforms.sync_free.SyncFreeEnv`), ``Transform._reset_env_preprocess`` and
+``Transform._inv_call`` (:mod:`torchpark.curriculum`), and ``VecNormV2._maybe_stateful_init``
 (:class:`~torchpark.transforms.sync_free.SyncFreeVecNorm`).
 """
 
