@@ -3,10 +3,13 @@ exists, and an anchor names a heading of the page it points to (GitHub's slugs).
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
 import pytest
+
+from tests.conftest import COMPILED_GROUP
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")),
@@ -57,3 +60,13 @@ def test_ci_runs_the_readmes_two_commands_as_written():
     commands = [line for line in block.splitlines() if line and not line.startswith("#")]
     ci = (ROOT / ".ci" / "run").read_text().splitlines()
     assert len(commands) == 2 and all(command in ci for command in commands)
+
+
+@pytest.mark.xdist_group(COMPILED_GROUP)
+def test_the_tests_of_one_xdist_group_share_a_worker(request):
+    """The README: on the suite's workers the tests that compile the shared builds run on one
+    of them. pytest-xdist's loadgroup tags their node ids with the group; where it does not
+    (pytest 9.2, pytest-xdist issue #1386) the groups split silently."""
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        pytest.skip("one process (-n 0): no workers to share")
+    assert request.node.nodeid.endswith(f"@{COMPILED_GROUP}")
