@@ -18,6 +18,10 @@ from torchpark._compat import (
 )
 from torchpark.config import check_flag
 
+# Whether inductor finds its C++ compiler here; without one a compiled step fails at its
+# first call with a long InvalidCxxCompiler traceback.
+compiler_found = cxx_compiler_found
+
 # torch.compile keeps the graphs of every compiled partial function in the cache of one
 # wrapper code object, 8 by default: with three per env, the third compiled env of a process
 # failed (fullgraph=True turns the limit into an error). Each env's graphs are its own.
@@ -56,13 +60,6 @@ def outputs_owned(fn: Callable) -> Callable:
                                for leaf in leaves], spec)
 
     return call
-
-
-def compiler_found() -> bool:
-    """Whether ``torch.compile``'s backend (inductor) finds the C++ compiler it builds its
-    kernels with here (``CXX``, else g++ or clang++ on the path). Without one a compiled step
-    fails at its first call with a long ``InvalidCxxCompiler`` traceback."""
-    return cxx_compiler_found()
 
 
 def compile_all(functions: Sequence[Callable], compile_kwargs: dict) -> list[Callable]:

@@ -32,7 +32,7 @@ class FrameCountingTransform(Transform):
     """A transform that counts frames (env steps summed over the batch, ``action_repeat``
     frames each) in a buffer mirrored by a Python int, so that no step reads a device tensor
     and ``state_dict``/``load_state_dict`` carry and resume the count, and that sets its
-    value in the base env (``_push``) before each reset and after a load.
+    value in the base env (``_push``) before each step and reset and after a load.
 
     ``replicas``: how many envs of this batch size step in lockstep with this one in the run
     (data-parallel ranks x collector workers, each with its own copy of the transform); each
@@ -56,12 +56,10 @@ class FrameCountingTransform(Transform):
         repeat = container.base_env.action_repeat if container is not None else 1
         return tensordict.numel() * repeat * self.replicas
 
-    def _count(self, next_tensordict: TensorDictBase) -> int:
-        """Add a step's frames; returns the count before them."""
-        before = self._frames
+    def _count(self, next_tensordict: TensorDictBase) -> None:
+        """Add a step's frames."""
         self._frames += self._step_frames(next_tensordict)
         self.frames.fill_(self._frames)  # an async fill from a host int: no sync
-        return before
 
     def _push(self, frames: int) -> None:
         """Set the base env's value for ``frames`` frames stepped."""
@@ -110,7 +108,10 @@ class OccupancyCurriculum(FrameCountingTransform):
     @property
     def level(self) -> int:
         """Index into ``levels`` of the current level."""
-        return level_at(self._frames, self.frames_per_level, len(self.levels))
+        return self._level_at(self._frames)
+
+    def _level_at(self, frames: int) -> int:
+        return level_at(frames, self.frames_per_level, len(self.levels))
 
     @property
     def phase(self) -> int:
@@ -124,13 +125,11 @@ class OccupancyCurriculum(FrameCountingTransform):
     def _push(self, frames: int) -> None:
         container = self.container
         if container is not None:
-            container.base_env.occupancy = self.levels[
-                level_at(frames, self.frames_per_level, len(self.levels))]
+            container.base_env.occupancy = self.levels[self._level_at(frames)]
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
               ) -> TensorDictBase:
-        self._count(next_tensordict)
-        self._push(self._frames)
+        self._count(next_tensordict)  # its level was set before the step (_inv_call)
         return next_tensordict
 
     def extra_repr(self) -> str:
