@@ -8,6 +8,7 @@ from functools import partial
 
 import pytest
 import torch
+from tensordict import TensorDict
 
 from benchmarks.kernel import KernelState, columns, kernel_step, lidar_env_inner
 from benchmarks.throughput import check_compiled_kernel
@@ -19,21 +20,19 @@ from torchpark.sim.lidar import lidar_scan
 def assert_steps_alike(env: ParkingEnv, step) -> None:
     """30 random steps of ``env``'s step function and of the kernel ``step`` from its state:
     every output equal, ending rows among them."""
-    aided = env._state
-    sim = aided.sim
+    sim = env.state
     state = KernelState(sim.pose, sim.goal, sim.steps, sim.present.t().contiguous())
     ended = 0
     for action in random_actions(env.num_envs, 30, 7):
-        aided, out, _ = env._guarded_fn(aided, action, env._no_bad_action)  # what step runs
+        out = env._step(TensorDict(action=action, batch_size=[env.num_envs]))  # no reset
         state, observation, reward, terminated, truncated, cost = step(state, action)
-        assert torch.equal(state.pose, aided.sim.pose)
-        assert torch.equal(state.steps, aided.sim.steps)
-        for ours, theirs in ((observation, out.observation), (reward, out.reward[:, 0]),
-                             (cost, out.cost[:, 0])):
+        assert torch.equal(state.pose, env.state.pose)
+        assert torch.equal(state.steps, env.state.steps)
+        for ours, theirs in ((observation, out["observation"]), (reward, out["reward"][:, 0]),
+                             (cost, out["cost"][:, 0]), (terminated, out["terminated"][:, 0]),
+                             (truncated, out["truncated"][:, 0])):
             assert torch.equal(ours, theirs)
-        assert torch.equal(terminated, out.terminated[:, 0])
-        assert torch.equal(truncated, out.truncated[:, 0])
-        ended += int(out.done.sum())
+        ended += int(out["done"].sum())
     assert ended > 0  # collisions and timeouts were compared, not only running steps
 
 

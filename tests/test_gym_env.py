@@ -336,13 +336,14 @@ def test_human_mode_without_pygame_names_the_extra(monkeypatch):
 
 def test_the_picture_says_which_layer_drives_when_aids_are_on():
     from torchpark import AidsConfig, BrakeConfig, DockingConfig, ParkingEnv
+    from torchpark.aids.step import drivers
 
     paper = ParkingEnv(1, seed=0)
     paper.reset()
-    assert paper._drivers([0]) is None  # the paper's env: nothing written
+    assert drivers(AidsConfig(), paper.aid_state) is None  # the paper's env: nothing written
     env = ParkingEnv(2, seed=0, aids=AidsConfig(brake=BrakeConfig(), docking=DockingConfig()))
     env.reset()
-    assert env._drivers([0, 1]) == ["policy", "policy"]
+    assert drivers(env.aids, env.aid_state) == ["policy", "policy"]
     state = env.state  # row 0 just behind its goal, in the docking law's funnel
     behind = state.goal.clone()
     behind[:, 0] -= 2.0 * torch.cos(behind[:, 2])
@@ -350,6 +351,6 @@ def test_the_picture_says_which_layer_drives_when_aids_are_on():
     td = env.set_state(state._replace(pose=torch.where(torch.tensor([[True], [False]]), behind,
                                                        state.pose)))
     td = env.step(td.set("action", torch.zeros(2, 2)))
-    assert td["next", "docking_engaged"][0] and env._drivers([0]) == ["docking law"]
+    assert td["next", "docking_engaged"][0] and drivers(env.aids, env.aid_state)[0] == "docking law"
     labelled, plain = env.render(0), paper.render(0)
     assert (labelled[3:8, 6:30] == 255).any() and not (plain[3:8, 6:30] == 255).all(-1).any()

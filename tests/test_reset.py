@@ -155,9 +155,8 @@ def test_no_two_state_tensors_share_memory(compiled, config, aids):
     td = env.reset()
     for a in random_actions(COMPILED_N, 6, 2):
         td = env.step_and_maybe_reset(td.set("action", a))[1]
-        tensors = [t for t in (*torch.utils._pytree.tree_leaves(env._state),
-                               *torch.utils._pytree.tree_leaves(env._ahead),
-                               env._observation, env._cost)]
+        tensors = [*torch.utils._pytree.tree_leaves(env._rows),
+                   *torch.utils._pytree.tree_leaves(env._resets._ahead)]
         pointers = [t.untyped_storage().data_ptr() for t in tensors]
         assert len(set(pointers)) == len(pointers)
 

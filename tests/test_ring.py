@@ -92,7 +92,7 @@ def test_the_rollout_is_the_host_paths(aids, blocks_ahead):
                       blocks_ahead=blocks_ahead)
     theirs, ours = rollout(host, 60, seed=1), rollout(ring, 60, seed=1)
     assert sum(int(td["next", "done"].sum()) for td, _ in theirs) > 6 * 48  # many ends
-    assert int(ring._counters.block) > 2 * ring._blocks  # the ring went round
+    assert int(ring._resets._counters.block) > 2 * ring._resets.ring_blocks  # the ring went round
     assert_same_rollout(ours, theirs)
 
 
@@ -142,6 +142,62 @@ def test_the_curriculum_transform_keeps_the_host_paths_rollout(wrapper):
     theirs, ours = (rollout(env, 80, seed=1) for env in envs)
     assert_same_rollout(ours, theirs)
     assert [env.base_env.occupancy for env in envs] == [PAPER_LEVELS[3]] * 2
+
+
+def _set_some_rows(env: ParkingEnv) -> None:
+    """Every third row put on its goal (their episodes end soon, and reset)."""
+    state = env.state
+    env.set_state(state._replace(pose=state.goal.clone()),
+                  torch.arange(env.num_envs, device=env.device) % 3 == 0)
+
+
+def _rewind(env: ParkingEnv) -> None:
+    """A snapshot, then a new occupancy and a full reset, then the snapshot restored."""
+    saved = env.snapshot()
+    env.occupancy = 0.3
+    env.reset()
+    env.restore(saved)
+
+
+SETTERS = {"occupancy": lambda env: setattr(env, "occupancy", 0.6),
+           "success_threshold": lambda env: env.set_success_threshold(1e-3),
+           "set_state": _set_some_rows, "restore": _rewind,
+           "randomize_step_counts": lambda env: env.randomize_step_counts()}
+
+
+@pytest.mark.parametrize("aids", [None, AIDED], ids=["paper", "aided"])
+@pytest.mark.parametrize("at", [0, 17], ids=["after-the-first-reset", "mid-run"])
+@pytest.mark.parametrize("setter", sorted(SETTERS))
+def test_both_engines_keep_one_rollout_under_each_setter(setter, at, aids):
+    """Each documented setter, right after the first reset (the ring has drawn every block
+    ahead) or between two steps: the host path and the ring give the same rollout, bit for
+    bit; a restore of a snapshot taken just before rewinds both as if nothing happened."""
+    envs = [ParkingEnv(24, seed=5, config=BUSY, aids=aids, reset_in_step=ring, blocks_ahead=3)
+            for ring in (False, True)]
+    theirs, ours = (rollout_changed(env, 40, 2, SETTERS[setter], at=at) for env in envs)
+    assert sum(int(td["next", "done"].sum()) for td, _ in theirs) > 24  # resets after it
+    assert_same_rollout(ours, theirs)
+    if setter == "restore":
+        plain = ParkingEnv(24, seed=5, config=BUSY, aids=aids, reset_in_step=False)
+        assert_same_rollout(ours, rollout(plain, 40, seed=2))
+
+
+def test_both_engines_keep_one_sequence_of_partial_resets_under_the_setters():
+    """Between partial resets (no step at all), each setter in turn: the same episodes."""
+    envs = [ParkingEnv(16, seed=9, config=BUSY, reset_in_step=ring, blocks_ahead=2)
+            for ring in (False, True)]
+    gen = torch.Generator().manual_seed(1)
+    for env in envs:
+        env.reset()
+    for name in sorted(SETTERS) * 2:
+        mask = torch.rand(16, 1, generator=gen) < 0.5
+        outputs = []
+        for env in envs:
+            SETTERS[name](env)
+            outputs.append(env.reset(TensorDict({"_reset": mask}, batch_size=[16])))
+        for key in outputs[0].keys(True, True):
+            assert torch.equal(outputs[0][key], outputs[1][key]), (name, key)
+        assert torch.equal(envs[0].state.steps, envs[1].state.steps), name
 
 
 def test_a_partial_reset_is_the_host_paths():
@@ -304,8 +360,8 @@ def test_the_spec_check_passes_and_no_two_tensors_share_memory(aids):
     td = env.reset()
     for action in random_actions(8, 6, 2):
         td = env.step_and_maybe_reset(td.set("action", action))[1]
-        tensors = [*torch.utils._pytree.tree_leaves(env._state),
-                   *torch.utils._pytree.tree_leaves(env._ring), env._observation, env._cost]
+        tensors = [*torch.utils._pytree.tree_leaves(env._rows),
+                   *torch.utils._pytree.tree_leaves(env._resets._ring)]
         pointers = [t.untyped_storage().data_ptr() for t in tensors]
         assert len(set(pointers)) == len(pointers)
 

@@ -238,7 +238,7 @@ def test_the_gpu_preset_is_fast_at_a_gpu_size_and_reads_its_env_once_per_batch()
     assert {"env.num_envs", "optim.compile_update"} <= differs
     on_cpu = dataclasses.replace(gpu, env=dataclasses.replace(gpu.env, reset_in_step=True))
     env = trainers.utils.make_base_env(on_cpu, training=False, num_envs=4)
-    assert env.reset_in_step and env._blocks == 8 + 1  # 8 env steps per batch
+    assert env.reset_in_step and env._resets.ring_blocks == 8 + 1  # 8 env steps per batch
 
 
 def test_unknown_preset_or_field_is_an_error():

@@ -4,6 +4,7 @@ outputs copied out of the graphs' memory."""
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from functools import wraps
 
@@ -107,3 +108,13 @@ def check_compile_kwargs(kwargs: object) -> dict:
         raise ValueError("compile_kwargs may hold 'mode' or 'options', not both (torch.compile "
                          "takes one of them)")
     return dict(kwargs)
+
+
+def compiles(caller: str) -> bool:
+    """Whether torch.compile can build here (:func:`compiler_found`); where not, one
+    RuntimeWarning says that ``caller`` runs eager."""
+    if compiler_found():
+        return True
+    warnings.warn(f"{caller} runs eager: torch.compile needs a C++ compiler and none was found "
+                  f"(install g++ or set CXX)", RuntimeWarning, stacklevel=3)
+    return False

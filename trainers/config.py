@@ -17,9 +17,9 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts
+from torchpark.checks import check_device
 from torchpark.config import ParkingConfig, RewardConfig, check_seed, require
 from torchpark.curriculum import PAPER_LEVELS
-from torchpark.env import check_device
 
 
 @dataclass

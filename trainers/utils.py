@@ -39,7 +39,7 @@ from torchpark import (
     SlotGaps,
 )
 from torchpark.aids.step import BRAKED
-from torchpark.env import MAX_BLOCKS_AHEAD
+from torchpark.resets import MAX_BLOCKS_AHEAD
 from torchpark.transforms.sync_free import SyncFreeEnv, SyncFreeRewardScaling, SyncFreeVecNorm
 from trainers.config import ModelConfig, TrainConfig, env_configs
 from trainers.heads import BinnedGearHead

@@ -14,9 +14,10 @@ import torch
 from torch import Tensor
 from torchrl.data import Binary, TensorSpec, Unbounded
 
-from torchpark.aids.brake import apply_brake
+from torchpark.aids.brake import apply_brake, check_margin, steer_angles
 from torchpark.aids.config import AidsConfig
 from torchpark.aids.docking import take_over
+from torchpark.aids.repeat import hold
 from torchpark.aids.starts import NearDraw, near_start
 from torchpark.config import ParkingConfig
 from torchpark.sim.episodes import LotDraw
@@ -148,14 +149,34 @@ def agent_observation(state: AidedState, world: World, cfg: ParkingConfig) -> Te
     return observe(state.sim, world, cfg)[0]
 
 
-def agent_step(world: World, steer_angles: Tensor, cfg: ParkingConfig,
-               aids: AidsConfig | None) -> Callable[[AidedState, Tensor],
-                                                    tuple[AidedState, StepResult, Tensor]]:
-    """The step of dt an env with ``aids`` runs, ``(state, action) -> (state, out,
-    finite)``: :func:`aided_step`, or without aids the paper's own (:func:`paper_step`)."""
+def agent_step(world: World, cfg: ParkingConfig, aids: AidsConfig | None
+               ) -> Callable[[AidedState, Tensor], tuple[AidedState, StepResult, Tensor]]:
+    """The env step an env with ``aids`` runs, ``(state, action) -> (state, out, finite)``:
+    :func:`aided_step`, or without aids the paper's own (:func:`paper_step`), held for the
+    aids' ``action_repeat`` steps of dt (:func:`~torchpark.aids.repeat.hold`, one function).
+    ValueError where the brake's margin does not fit the lot."""
+    agent = aids if aids is not None else AidsConfig()
     if aids is None:
-        return partial(paper_step, world=world, cfg=cfg)
-    return partial(aided_step, world=world, steer_angles=steer_angles, cfg=cfg, aids=aids)
+        step = partial(paper_step, world=world, cfg=cfg)
+    else:
+        device = world.goal_poses.device
+        if aids.brake is not None:
+            check_margin(aids.brake.margin, world, cfg.vehicle)
+        angles = (steer_angles(cfg, aids.brake, device) if aids.brake is not None
+                  else torch.empty(0, device=device))
+        step = partial(aided_step, world=world, steer_angles=angles, cfg=cfg, aids=aids)
+    return hold(step, agent.action_repeat, partial(agent_observation, world=world, cfg=cfg))
+
+
+def drivers(aids: AidsConfig, state: AidState) -> list[str] | None:
+    """Which layer drove the last step of each row of ``state``, with the brake or the docking
+    law on: "brake" (it stopped the last step of dt), "docking law" (it has taken over), else
+    "policy"; None for the paper's env and a policy alone."""
+    if not output_keys(aids):
+        return None
+    return ["brake" if braked else "docking law" if docked else "policy"
+            for braked, docked in zip(state.braked.tolist(), state.docking_engaged.tolist(),
+                                      strict=True)]
 
 
 def aided_new_episodes(lots: LotDraw, near: NearDraw | None, world: World, cfg: ParkingConfig
