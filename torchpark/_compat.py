@@ -1,6 +1,7 @@
 """Every private torch / torchrl name torchpark touches, each behind one function with why the
-public API does not serve. Checked on torch 2.13.0 and torchrl 0.14.1 (what CI installs);
-moving the version pins in ``pyproject.toml`` is this file's work.
+public API does not serve. Checked on torch 2.13.0 and torchrl 0.14.1 (what CI installs), and
+on torch 2.14.1 and 2.15.0, where every name here works (research/experiments.md, "the version
+pins tried"); moving the version pins in ``pyproject.toml`` is this file's work.
 
 The torchrl hooks our subclasses override must be methods of those classes, so they are only
 named here: ``EnvBase._step_and_maybe_reset`` (:class:`torchpark.ParkingEnv`,

@@ -264,8 +264,7 @@ class ParkingEnv(EnvBase):
         synchronisation; one that requires grad is refused). With near-goal starts, which
         are drawn clear of the success test, the episodes drawn ahead are discarded."""
         number = check_threshold(value)
-        if self._agent.near_goal_starts is not None:
-            self._resets.discard()
+        self._resets.threshold_changed()
         self._world.success_threshold.fill_(number)
 
     @property

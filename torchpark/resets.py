@@ -31,7 +31,7 @@ from __future__ import annotations
 import contextlib
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import partial
 
 import torch
@@ -56,7 +56,8 @@ BAD_ACTION = "action must be finite (no NaN or inf)"
 
 class EpisodeDraw:
     """N new episodes at a time from ``generator``: lots at :attr:`occupancy` (settable),
-    start poses (near the goal with ``near`` starts), their first observations and costs.
+    start poses (near the goal with ``near`` starts: :attr:`near_goal_starts`), their first
+    observations and costs.
     ``new_episodes(lots, near_draw) -> (state, observation, cost)`` is the env's reset of B
     rows (:func:`torchpark.aids.step.aided_new_episodes`, bound, compiled or not)."""
 
@@ -64,13 +65,14 @@ class EpisodeDraw:
                  world: World, near: NearGoalStarts | None, new_episodes: Callable,
                  generator: torch.Generator) -> None:
         self.num_envs, self.occupancy, self.generator = num_envs, occupancy, generator
-        self._layout, self._lot, self._world, self._near = layout, lot, world, near
+        self.near_goal_starts = near
+        self._layout, self._lot, self._world = layout, lot, world
         self._new_episodes = new_episodes
 
     def __call__(self) -> Rows:
         lots = draw_lots(self.num_envs, self.occupancy, self._layout, self._lot, self.generator)
-        near = None if self._near is None else draw_near(
-            self._world.goal_poses[lots.goal_slot], self._near, self.generator)
+        near = None if self.near_goal_starts is None else draw_near(
+            self._world.goal_poses[lots.goal_slot], self.near_goal_starts, self.generator)
         return Rows(*self._new_episodes(lots, near))
 
 
@@ -83,7 +85,7 @@ class Reset:
     a partial reset only), None where none is to be zeroed."""
 
     output: TensorDictBase | None = None
-    pad: Callable[[TensorDictBase], TensorDictBase] | None = field(default=None)
+    pad: Callable[[TensorDictBase], TensorDictBase] | None = None
 
 
 class Resets(ABC):
@@ -106,11 +108,11 @@ class Resets(ABC):
         self._reset: Reset | None = None
 
     @staticmethod
+    @abstractmethod
     def ahead(blocks_ahead: int) -> tuple[int, str]:
         """The blocks of N episodes the engine holds drawn ahead, given the env's
         ``blocks_ahead``, and the argument that sets them as an error names it ("" where
         none does)."""
-        return 1, ""
 
     def _functions(self, step: Callable) -> list[Callable]:
         """The engine's own functions to build beside the guarded step."""
@@ -175,6 +177,13 @@ class Resets(ABC):
         """Hand out none of the episodes drawn so far: later resets draw new ones (from the
         generator, at the occupancy and against the success threshold of that time)."""
 
+    def threshold_changed(self) -> None:
+        """The success threshold changes: episodes drawn ahead with near-goal starts, which
+        are drawn clear of the success test, are discarded (the others do not depend on
+        it)."""
+        if self.draw.near_goal_starts is not None:
+            self.discard()
+
     @abstractmethod
     def redraw_ahead(self) -> None:
         """Before something else draws from the generator: put it where the host path, which
@@ -203,6 +212,10 @@ class HostResets(Resets):
         super().__init__(draw, step, fields, build, validate_actions)
         self._ahead, self._used = ahead, draw.num_envs
         self._no_bad = torch.tensor(False, device=self._device)
+
+    @staticmethod
+    def ahead(blocks_ahead: int) -> tuple[int, str]:
+        return 1, ""
 
     def _step(self, rows: Rows, action: Tensor) -> tuple[Rows, TensorDict]:
         rows, outputs, bad = self._stepped(rows, action, self._no_bad)
