@@ -11,32 +11,28 @@ part by 1.1e-4 (6.5e-4 unclipped).
 
 from __future__ import annotations
 
+import math
+from functools import partial
+
 import torch
 from torchrl.objectives import ClipPPOLoss
 
 from tests.test_trainer import saturated_draws
-from trainers.ppo import recompute_log_prob_, standardise_advantage
-
-
-def backward(loss_fn: ClipPPOLoss, sample, clip: bool) -> None:
-    """The first half of ``trainers.ppo.ppo_step``: the loss, its backward, the clipping."""
-    sample.set("advantage", standardise_advantage(sample["advantage"]))
-    losses = loss_fn(sample)
-    total = losses["loss_objective"] + losses["loss_critic"]
-    if "loss_entropy" in losses.keys():
-        total = total + losses["loss_entropy"]
-    total.backward()
-    if clip:
-        torch.nn.utils.clip_grad_norm_(list(loss_fn.parameters()), 0.5)
+from trainers.ppo import ppo_step, recompute_log_prob_
 
 
 def gradients(compiled: bool, clip: bool) -> torch.Tensor:
+    """The (clipped) gradient of one ``trainers.ppo.ppo_step``, read as what plain SGD at
+    learning rate 1 moves the parameters by."""
     torch.manual_seed(0)
     actor, critic, td = saturated_draws(0.0)
     recompute_log_prob_(actor, td, "action_log_prob")
     loss = ClipPPOLoss(actor, critic, normalize_advantage=False)
-    (torch.compile(backward) if compiled else backward)(loss, td.split(64)[0].clone(), clip)
-    return torch.cat([p.grad.flatten() for p in loss.parameters() if p.grad is not None])
+    before = torch.cat([p.detach().flatten() for p in loss.parameters()])
+    step = partial(ppo_step, loss, torch.optim.SGD(loss.parameters(), lr=1.0),
+                   max_grad_norm=0.5 if clip else math.inf)
+    (torch.compile(step) if compiled else step)(td.split(64)[0].clone())
+    return before - torch.cat([p.detach().flatten() for p in loss.parameters()])
 
 
 def adam(compiled: bool) -> torch.Tensor:
