@@ -180,3 +180,37 @@ def test_the_private_name_rule_catches_each_form(tmp_path):
                     "w = torch.compiler.reset()\n")
     assert private_uses(fake) == ["_carrier", "_step_mdp", "torch._dynamo.config",
                                   "torch._inductor.config", "torch.utils._pytree"]
+
+
+AID_FIELDS = ("brake", "docking", "near_goal_starts", "observe_position")
+
+
+def plumbing_faults(source: str, limit: int = 300) -> list[str]:
+    """What keeps the class ``ParkingEnv`` in ``source`` from being plumbing: more than
+    ``limit`` lines, more than two conditions on ``reset_in_step`` (its default and the
+    engine it builds: the engines hold the rest), a condition on an aid's config."""
+    cls = next(n for n in ast.parse(source).body
+               if isinstance(n, ast.ClassDef) and n.name == "ParkingEnv")
+
+    def names(node: ast.AST) -> set[str]:
+        return {n.id if isinstance(n, ast.Name) else n.attr for n in ast.walk(node)
+                if isinstance(n, (ast.Name, ast.Attribute))}
+
+    tests = [names(n.test) for n in ast.walk(cls) if isinstance(n, (ast.If, ast.IfExp))]
+    faults = [f"{cls.end_lineno - cls.lineno + 1} lines"] \
+        if cls.end_lineno - cls.lineno + 1 > limit else []
+    ring = sum("reset_in_step" in t for t in tests)
+    faults += [f"{ring} conditions on reset_in_step"] if ring > 2 else []
+    return faults + [f"a condition on {f}" for f in AID_FIELDS if any(f in t for t in tests)]
+
+
+def test_the_env_class_is_plumbing():
+    assert plumbing_faults((PACKAGE / "env.py").read_text()) == []
+
+
+def test_the_plumbing_rule_catches_each_fault():
+    branchy = ("class ParkingEnv:\n    def a(self):\n" + "        pass\n" * 3
+               + "".join("        if self.reset_in_step:\n            pass\n" for _ in range(3))
+               + "        x = 1 if self._agent.brake is not None else 2\n")
+    assert plumbing_faults(branchy, limit=5) == [
+        "12 lines", "3 conditions on reset_in_step", "a condition on brake"]
