@@ -37,8 +37,8 @@ from torchpark.gym_env import ParkingVectorEnv
 try:
     from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 except ImportError as err:  # the optional extra
-    raise ImportError("torchpark.sb3 needs Stable-Baselines3: pip install -e '.[train]' "
-                      "(or pip install stable-baselines3)") from err
+    raise ImportError("torchpark.sb3 needs Stable-Baselines3: pip install 'torchpark[sb3]' "
+                      "(in a checkout: pip install -e '.[sb3]')") from err
 
 
 class ParkingVecEnv(VecEnv):
