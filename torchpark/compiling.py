@@ -19,8 +19,8 @@ from torchpark._compat import (
 )
 from torchpark.config import check_flag
 
-# Whether inductor finds its C++ compiler here; without one a compiled step fails at its
-# first call with a long InvalidCxxCompiler traceback.
+#: ``compiler_found() -> bool``: whether inductor finds its C++ compiler here; without one a
+#: compiled step fails at its first call with a long InvalidCxxCompiler traceback.
 compiler_found = cxx_compiler_found
 
 # torch.compile keeps the graphs of every compiled partial function in the cache of one
@@ -111,7 +111,7 @@ def check_compile_kwargs(kwargs: object) -> dict:
 
 
 def compiles(caller: str) -> bool:
-    """Whether torch.compile can build here (:func:`compiler_found`); where not, one
+    """Whether torch.compile can build here (:data:`compiler_found`); where not, one
     RuntimeWarning says that ``caller`` runs eager."""
     if compiler_found():
         return True

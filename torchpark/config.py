@@ -158,12 +158,13 @@ class LotConfig:
 
     @property
     def thinnest_obstacle(self) -> float:
-        """The thinnest obstacle's thickness, m: min(wall_thickness, car_width) (a parked car
-        is narrower than it is long)."""
+        """The thickness of the thinnest obstacle in metres, min(wall_thickness, car_width) (a
+        parked car is narrower than it is long)."""
         return min(self.wall_thickness, self.car_width)
 
     @property
     def num_slots(self) -> int:
+        """The lot's slots S, every row's."""
         return self.upper_slots + self.left_slots + self.middle_slots + self.right_slots
 
 

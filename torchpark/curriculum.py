@@ -120,6 +120,7 @@ class OccupancyCurriculum(FrameCountingTransform):
 
     @property
     def occupancy(self) -> float:
+        """The occupancy of the current level."""
         return self.levels[self.level]
 
     def _push(self, frames: int) -> None:

@@ -125,7 +125,8 @@ class ParkingEnv(EnvBase):
         compile_step: run the step and the batched draw of new episodes through
             ``torch.compile(fullgraph=True)``: several times faster on a CPU from a few hundred
             envs on; the first step then takes tens of seconds. Without a C++ compiler
-            (:func:`compiler_found`) the env warns once and runs eager (:attr:`compiled`).
+            (:data:`~torchpark.compiling.compiler_found`) the env warns once and runs eager
+            (:attr:`compiled`).
         compile_kwargs: passed to ``torch.compile``; in a mode that replays CUDA graphs each
             replay's outputs are copied out of the graphs' memory, which the next overwrites.
         validate_actions: raise ValueError on a non-finite action (its row stands still
@@ -217,8 +218,8 @@ class ParkingEnv(EnvBase):
                            "rows a step ends inside the step's function.")
     aids = _fixed("aids", "The agent-side aids' :class:`~torchpark.aids.config.AidsConfig` "
                   "(None: the paper's env).", "_aids_config")
-    world = _fixed("world", "The constants every env shares (obstacle boxes, goal poses, the "
-                   "success threshold): read-only, for analysis and tests.")
+    world = _fixed("world", "The constants every env shares, read-only, for analysis and tests "
+                   "(obstacle boxes, goal poses, the success threshold).")
 
     @property
     def validate_actions(self) -> bool:
@@ -269,6 +270,7 @@ class ParkingEnv(EnvBase):
 
     @property
     def obs_dim(self) -> int:
+        """The observation's width D (NAV_DIM + the rays)."""
         return observation_dim(self.config)
 
     # ------------------------------------------------------------------ seeding and state
@@ -287,7 +289,7 @@ class ParkingEnv(EnvBase):
 
     @property
     def aid_state(self) -> AidState:
-        """A copy of the aids' per-env state (inert without aids: never braked, no
+        """A copy of the aids' per-env state (inert without aids, never braked, no
         intervention, the docking law never engaged)."""
         return AidState(*(t.clone() for t in self._rows.state.aids))
 

@@ -229,6 +229,8 @@ class ParkingGymEnv(gymnasium.Env):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
+        """A new lot and start (Gymnasium's ``reset``): ``seed`` reseeds the env's generator,
+        ``options`` may set ``occupancy``. Returns the observation (23,) float32 and info."""
         super().reset(seed=seed)
         td = _reset_lots(self.env, seed, options)
         self._ended = False
@@ -236,6 +238,9 @@ class ParkingGymEnv(gymnasium.Env):
         return self._observe(td), self._info(td)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """One step at ``action`` (v, delta) in the action space (Gymnasium's ``step``):
+        observation, reward, terminated, truncated, info; after an episode's end, reset
+        first (``ResetNeeded``)."""
         if self._ended:  # the car would stay where it collided or parked, scored again
             raise gymnasium.error.ResetNeeded("the episode has ended (terminated or truncated) "
                                               "or not begun: call env.reset() before step()")
@@ -261,6 +266,7 @@ class ParkingGymEnv(gymnasium.Env):
         return self.env.render(0)
 
     def close(self) -> None:
+        """Close the window, if one is open."""
         if self._window is not None:
             self._window.close()
         super().close()
@@ -335,6 +341,9 @@ class ParkingVectorEnv(VectorEnv):
 
     def reset(self, *, seed: int | list[int] | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        """New lots for every env, or for those of ``options["reset_mask"]`` (Gymnasium's
+        partial reset): ``seed`` one int for the whole batch (one generator). Returns the
+        observations (N, 23) and info."""
         if isinstance(seed, list):
             raise ValueError("seed must be one int for the whole batch (one generator), "
                              f"got a list of {len(seed)}")
@@ -349,6 +358,9 @@ class ParkingVectorEnv(VectorEnv):
 
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                           dict[str, Any]]:
+        """One step of every env at ``actions`` (N, 2), the ended ones redrawn in it
+        (``AutoresetMode.SAME_STEP``: an ended env's last observation in
+        ``info["final_obs"]``)."""
         if self._td is None:
             raise RuntimeError("call reset() before step()")
         self._td["action"] = _checked_actions(actions, self.single_action_space,
@@ -367,6 +379,8 @@ class ParkingVectorEnv(VectorEnv):
                 info)
 
     def render(self) -> tuple[np.ndarray, ...] | None:
+        """Pictures of the first ``render_envs`` lots (rgb_array); None without a
+        render_mode."""
         if self.render_mode is None:
             gymnasium.logger.warn("render() called without a render_mode; pass "
                                   "render_mode='rgb_array' to gymnasium.make_vec")

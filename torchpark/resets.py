@@ -55,8 +55,8 @@ BAD_ACTION = "action must be finite (no NaN or inf)"
 
 
 class EpisodeDraw:
-    """N new episodes at a time from ``generator``: lots at :attr:`occupancy` (settable),
-    start poses (near the goal with ``near`` starts: :attr:`near_goal_starts`), their first
+    """N new episodes at a time from ``generator``: lots at ``occupancy`` (settable),
+    start poses (near the goal with ``near`` starts: ``near_goal_starts``), their first
     observations and costs.
     ``new_episodes(lots, near_draw) -> (state, observation, cost)`` is the env's reset of B
     rows (:func:`torchpark.aids.step.aided_new_episodes`, bound, compiled or not)."""
@@ -89,11 +89,11 @@ class Reset:
 
 
 class Resets(ABC):
-    """The interface of the two engines: steps (:meth:`step`), resets of a mask's rows
-    (:meth:`reset`), the episodes drawn ahead discarded (:meth:`discard`), their state as a
-    snapshot's entries. ``step(state, action) -> (state, StepResult, finite)`` is the env's
-    step; ``fields(state, observation, cost) -> dict`` its outputs read from rows (views);
-    ``build(functions) -> functions`` compiles them or not."""
+    """The interface of the two engines: steps (:meth:`Resets.step`), resets of a mask's rows
+    (:meth:`Resets.reset`), the episodes drawn ahead discarded (:meth:`Resets.discard`), their
+    state as a snapshot's entries. ``step(state, action) -> (state, StepResult, finite)`` is
+    the env's step; ``fields(state, observation, cost) -> dict`` its outputs read from rows
+    (views); ``build(functions) -> functions`` compiles them or not."""
 
     #: What the env's snapshot says of its reset path (``build``'s entries).
     reset_in_step = False

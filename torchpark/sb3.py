@@ -7,11 +7,12 @@ ParkingVecEnv(256))`` steps every lot in one batched call instead of N single en
 
     model = PPO("MlpPolicy", ParkingVecEnv(256, seed=0)).learn(100_000)
 
-Stable-Baselines3 is an optional extra (``pip install -e ".[train]"``); ``import
+Stable-Baselines3 is an optional extra (``pip install "torchpark[sb3]"``); ``import
 torchpark`` does not import it. The keywords are those of
-``gymnasium.make_vec("torchpark/Parking-v0", ...)`` (:class:`torchpark.gym_env.
-ParkingVectorEnv`): ``occupancy``, ``device``, ``seed``, ``compile_step``,
-``physical_actions``, ``config``, ``aids``, ``render_mode`` and any ``ParkingConfig`` field.
+``gymnasium.make_vec("torchpark/Parking-v0", ...)``
+(:class:`~torchpark.gym_env.ParkingVectorEnv`): ``occupancy``, ``device``, ``seed``,
+``compile_step``, ``physical_actions``, ``config``, ``aids``, ``render_mode`` and any
+``ParkingConfig`` field.
 
 SB3's conventions: a lot whose episode ends is redrawn in the same step (the returned
 observation is the new lot's first); its last observation is in

@@ -44,7 +44,7 @@ def steer_angles(cfg: ParkingConfig, brake: BrakeConfig, device: torch.device | 
 
 def fence(pose: Tensor, vehicle: VehicleConfig, margin: float) -> OrientedBoxes:
     """The vehicle's boxes at rear-axle poses [..., 3], grown by ``margin`` m on every side
-    (same centre and heading): what the brake keeps clear with :attr:`BrakeConfig.margin`."""
+    (same centre and heading): what the brake keeps clear with ``BrakeConfig.margin``."""
     box = vehicle_obb(pose, vehicle)
     return replace(box, half_length=box.half_length + margin,
                    half_width=box.half_width + margin)
@@ -62,7 +62,7 @@ def goal_room(world: World, vehicle: VehicleConfig, margin: float = 0.0) -> floa
 
 
 def check_margin(margin: float, world: World, vehicle: VehicleConfig) -> None:
-    """Refuse a :attr:`BrakeConfig.margin` that the goal itself breaks (:func:`goal_room`),
+    """Refuse a ``BrakeConfig.margin`` that the goal itself breaks (:func:`goal_room`),
     naming the largest that it does not (to 1 mm)."""
     if margin > 0 and goal_room(world, vehicle, margin) <= 0:
         low, high = 0.0, margin

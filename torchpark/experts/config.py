@@ -1,5 +1,5 @@
-"""Configuration of the hand-written expert: the approach planner (:mod:`torchpark.experts.
-planner`) and the agent it drives with (:class:`ExpertConfig`). Units: metres, seconds,
+"""Configuration of the hand-written expert: the approach planner (:mod:`torchpark.experts.planner`)
+and the agent it drives with (:class:`ExpertConfig`). Units: metres, seconds,
 radians."""
 
 from __future__ import annotations

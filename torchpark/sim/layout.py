@@ -60,7 +60,7 @@ class LotLayout:
 
     @property
     def obstacles(self) -> Tensor:
-        """(S + 4, 5): every slot's parked car, then the four walls."""
+        """Every slot's parked car, then the four walls, (S + 4, 5)."""
         return torch.cat((self.cars, self.walls))
 
     @property
@@ -166,7 +166,8 @@ def lot_poses(unit: Tensor, extent: Tensor) -> Tensor:
 
 def uniform_poses(layout: LotLayout, shape: tuple[int, ...], generator: torch.Generator
                   ) -> Tensor:
-    """Rear-axle poses [*shape, 3] uniform over the lot rectangle, heading uniform in [-pi, pi)."""
+    """Rear-axle poses ``[*shape, 3]`` uniform over the lot rectangle, heading uniform in
+    [-pi, pi)."""
     device = layout.slots.device
     extent = torch.tensor([layout.width, layout.height], device=device)
     return lot_poses(torch.rand(*shape, 3, generator=generator, device=device), extent)

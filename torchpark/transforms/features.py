@@ -388,7 +388,7 @@ class SlotGaps(Transform):
     but its goal's (the planner's ``slot_cost``) steers by where they are; these features let
     a student see them. Computed from the observation (``in_key``, which starts with the
     paper's), the rear axle's position in the lot (``position_key``, the env's with
-    :attr:`~torchpark.aids.config.AidsConfig.observe_position`) and the lot's map, which is
+    ``AidsConfig.observe_position``) and the lot's map, which is
     the same for every env.
 
     Args:
