@@ -11,6 +11,7 @@ torch, torchrl, tensordict, numpy, Gymnasium and Stable-Baselines3 are not linke
 
 from __future__ import annotations
 
+import inspect
 import re
 
 project = "torchpark"
@@ -33,7 +34,6 @@ autosummary_generate = True
 autodoc_default_options = {"members": True, "show-inheritance": True}
 autodoc_member_order = "bysource"
 autodoc_typehints = "description"
-autodoc_class_signature = "separated"
 napoleon_google_docstring = True
 napoleon_numpy_docstring = False
 
@@ -46,7 +46,8 @@ nitpick_ignore_regex = [
     (r"py:.*", r"torchpark\..*\._\w+|torchpark\.sim\.records\.R"),
     (r"py:.*", r"(Tensor|TensorDict|TensorDictBase|TensorSpec|Composite|Bounded|Unbounded"
                r"|Binary|EnvBase|TransformedEnv|Transform|VecEnv|VecEnvIndices|Env|VectorEnv"
-               r"|Generator|Callable|Sequence|Iterator|Any|NamedTuple|ndarray|Path)"),
+               r"|Generator|Callable|Sequence|Iterator|Any|NamedTuple|ndarray|Path|NestedKey"
+               r"|mp\..*)"),
 ]
 # The guides link to files beside docs/ (the README, research/): tests/test_docs.py checks that
 # each resolves; the site does not hold them.
@@ -79,6 +80,17 @@ def literal_absolute_values(app, what, name, obj, options, lines):
     lines[:] = [ABSOLUTE.sub(r"``|\1|``", line) for line in lines]
 
 
+def init_signature(app, what, name, obj, options, signature, return_annotation):
+    """A class whose metaclass's ``__call__`` hides its ``__init__`` (torchrl's ``EnvBase``
+    and transforms: ``(*args, **kwargs)``) shown with its ``__init__``'s signature."""
+    if what != "class" or signature != "(*args, **kwargs)":
+        return None
+    parameters = [parameter.replace(annotation=inspect.Parameter.empty)  # in the description
+                  for parameter in list(inspect.signature(obj.__init__).parameters.values())[1:]]
+    return str(inspect.Signature(parameters)), return_annotation
+
+
 def setup(app):
+    app.connect("autodoc-process-signature", init_signature)
     app.connect("missing-reference", resolve_short_name)
     app.connect("autodoc-process-docstring", literal_absolute_values)

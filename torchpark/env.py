@@ -216,8 +216,8 @@ class ParkingEnv(EnvBase):
     compiled = _fixed("compiled", "Whether the step and the reset's draw are compiled.")
     reset_in_step = _fixed("reset_in_step", "Whether ``step_and_maybe_reset`` resets the "
                            "rows a step ends inside the step's function.")
-    aids = _fixed("aids", "The agent-side aids' :class:`~torchpark.aids.config.AidsConfig` "
-                  "(None: the paper's env).", "_aids_config")
+    aids = _fixed("aids", "The agent-side aids' :class:`~torchpark.aids.config.AidsConfig`, "
+                  "None for the paper's env.", "_aids_config")
     world = _fixed("world", "The constants every env shares, read-only, for analysis and tests "
                    "(obstacle boxes, goal poses, the success threshold).")
 
