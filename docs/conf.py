@@ -43,7 +43,7 @@ nitpick_ignore_regex = [
     (r"py:.*", r"(torch|torchrl|tensordict|numpy|np|gymnasium|stable_baselines3|collections"
                r"|typing|pathlib|abc)(\..*)?"),
     # private bases and type variables, which the site does not document
-    (r"py:.*", r"torchpark\..*\._\w+|torchpark\.sim\.records\.R"),
+    (r"py:.*", r"torchpark\..*\._\w+|torchpark\.sim\.records\.R|torchpark\.sim\.step\.RowsT"),
     (r"py:.*", r"(Tensor|TensorDict|TensorDictBase|TensorSpec|Composite|Bounded|Unbounded"
                r"|Binary|EnvBase|TransformedEnv|Transform|VecEnv|VecEnvIndices|Env|VectorEnv"
                r"|Generator|Callable|Sequence|Iterator|Any|NamedTuple|ndarray|Path|NestedKey"

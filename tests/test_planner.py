@@ -62,7 +62,7 @@ def test_arcs_are_the_bicycle_integrated_finely():
 def test_cell_index_inverts_grid_poses_and_refuses_off_the_grid(layout):
     grid = grid_of(layout, COARSE)
     poses = grid_poses(grid, "cpu")
-    assert torch.equal(cell_index(poses, grid), torch.arange(grid.count))
+    assert torch.equal(cell_index(poses, grid), torch.arange(grid.cells))
     off = torch.tensor([[-1.0, 5.0, 0.0], [5.0, layout.height + 2 * grid.cell, 0.0]])
     assert (cell_index(off, grid) == -1).all()
     # pi and -pi are the same heading, the same cell
@@ -188,7 +188,7 @@ def test_with_a_car_margin_no_arc_taken_brings_the_grown_box_onto_a_parked_car(p
     env = ParkingEnv(n, seed=2, config=ParkingConfig(occupancy=0.9))
     env.reset()
     sim = env.state
-    pose = grid_poses(planner.grid, "cpu")[torch.randperm(planner.grid.count,
+    pose = grid_poses(planner.grid, "cpu")[torch.randperm(planner.grid.cells,
                                                           generator=torch.Generator()
                                                           .manual_seed(0))[:n]]
     margin = 0.3

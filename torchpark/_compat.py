@@ -12,7 +12,8 @@ named here: ``EnvBase._step_and_maybe_reset`` (:class:`torchpark.ParkingEnv`,
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import torch
 from tensordict import TensorDictBase
@@ -20,7 +21,7 @@ from tensordict import TensorDictBase
 # torch's pytree, the one torch.compile traces: ``torch.utils._pytree`` (torch's public
 # ``torch.utils.pytree`` does not exist in torch 2.13; optree is another package).
 from torch.utils._pytree import tree_flatten, tree_map_only, tree_unflatten
-from torchrl.envs import EnvBase
+from torchrl.envs import EnvBase, Transform
 
 __all__ = ["collector_carrier", "copy_all_", "cxx_compiler_found", "post_step_mdp_hooks",
            "raise_recompile_limit", "reset_env_preprocess", "step_mdp", "transform_reset",
@@ -70,27 +71,27 @@ def step_mdp(env: EnvBase, tensordict: TensorDictBase) -> TensorDictBase:
     return env._step_mdp(tensordict)
 
 
-def post_step_mdp_hooks(env: EnvBase):
+def post_step_mdp_hooks(env: EnvBase) -> Callable | None:
     """The env's ``_post_step_mdp_hooks`` (a transform's hook between the step and the
     reset; None where there is none), which torchrl's ``step_and_maybe_reset`` applies and a
     replacement of it must apply too."""
     return env._post_step_mdp_hooks
 
 
-def reset_env_preprocess(transform, tensordict: TensorDictBase) -> TensorDictBase:
+def reset_env_preprocess(transform: Transform, tensordict: TensorDictBase) -> TensorDictBase:
     """``Transform._reset_env_preprocess``: what a transform does to the reset request before
     the env below sees it, as torchrl's ``TransformedEnv._reset`` calls it."""
     return transform._reset_env_preprocess(tensordict)
 
 
-def transform_reset(transform, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
-                    ) -> TensorDictBase:
+def transform_reset(transform: Transform, tensordict: TensorDictBase,
+                    tensordict_reset: TensorDictBase) -> TensorDictBase:
     """``Transform._reset``: a transform's part of a reset (its statistics, its outputs in
     the reset's tensordict), as ``TransformedEnv._reset`` calls it after the base env's."""
     return transform._reset(tensordict, tensordict_reset)
 
 
-def collector_carrier(collector) -> TensorDictBase:
+def collector_carrier(collector: Any) -> TensorDictBase:
     """The tensordict a collector carries from one batch to the next (the envs' last step,
     the policy's recurrent state): ``collector._carrier``, which torchrl 0.14 saves in no
     ``state_dict``."""

@@ -24,7 +24,7 @@ def check_count(value: object, name: str, low: int, high: int | None = None) -> 
     return int(value)
 
 
-def check_device(device: object, name: str = "device") -> torch.device:
+def check_device(device: torch.device | str | int, name: str = "device") -> torch.device:
     """``device`` as a torch device ("cpu:0" as "cpu"); ValueError naming ``name`` unless it
     is a CPU or CUDA device this machine has."""
     try:
@@ -70,7 +70,7 @@ def check_threshold(value: object) -> float:
             raise ValueError(f"success_threshold must be a 0-d float tensor that does not "
                              f"require grad, got shape {tuple(value.shape)} {value.dtype}"
                              f"{' requiring grad' if value.requires_grad else ''}")
-        number = float(value)
+        number: object = float(value)
     else:
         number = value
     if not is_number(number) or not math.isfinite(number) or number <= 0:

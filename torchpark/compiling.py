@@ -7,6 +7,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable, Sequence
 from functools import wraps
+from typing import Any
 
 import torch
 
@@ -50,7 +51,7 @@ def outputs_owned(fn: Callable) -> Callable:
     nothing the env holds lives in the pool."""
 
     @wraps(fn)
-    def call(*args):
+    def call(*args: Any) -> Any:
         torch.compiler.cudagraph_mark_step_begin()
         leaves, spec = tree_flatten(fn(*args))
         tensors = [leaf for leaf in leaves if isinstance(leaf, torch.Tensor)]

@@ -13,16 +13,17 @@ import math
 import numbers
 import typing
 from dataclasses import dataclass, field
+from typing import TypeGuard
 
 import numpy as np
 
 
-def is_number(value: object) -> bool:
+def is_number(value: object) -> TypeGuard[float]:
     """A real number (Python or numpy) that is not a bool."""
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
-def is_integer(value: object) -> bool:
+def is_integer(value: object) -> TypeGuard[int]:
     """An integer (Python or numpy) that is not a bool."""
     return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
 
@@ -40,6 +41,8 @@ def check_types(config: object) -> None:
     bools, int fields ints (not bools), float fields real numbers (not bools; ints and numpy
     numbers are stored as float), nested configs their class, ``X | None`` also None. Raises
     TypeError naming ``Class.field``; otherwise stores the normalised values."""
+    if not dataclasses.is_dataclass(config):
+        raise TypeError(f"check_types takes a config dataclass, got {type(config).__name__}")
     owner = type(config).__name__
     hints = typing.get_type_hints(type(config))
     for f in dataclasses.fields(config):

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 from tensordict import TensorDictBase
@@ -76,7 +77,8 @@ class FrameCountingTransform(Transform):
         self._push(self._frames)  # before the base env draws its new lots
         return super()._reset_env_preprocess(tensordict)
 
-    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+    def _load_from_state_dict(self, state_dict: dict, prefix: str, *args: Any, **kwargs: Any
+                              ) -> None:
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
         self._frames = int(self.frames)
         if "_container" in self.__dict__:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from functools import partial
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -71,6 +72,9 @@ from torchpark.sim.step import put_rows_, take_rows
 from torchpark.sim.world import build_world
 from torchpark.snapshots import build_of, restore_snapshot, take_snapshot
 from torchpark.specs import env_specs
+
+if TYPE_CHECKING:  # Pillow, imported on the first picture
+    from torchpark.media.rendering import LotRenderer
 
 __all__ = ["MAX_BLOCKS_AHEAD", "ParkingEnv", "check_device"]
 
@@ -207,7 +211,7 @@ class ParkingEnv(EnvBase):
                               Rows.zeros(n * blocks, obstacles, dim, self.device))
         self._set_seed(seed)
         self._started = False  # no lot drawn yet: reset() first
-        self._renderer = None  # a media.rendering.LotRenderer, made on the first picture
+        self._renderer: LotRenderer | None = None  # made on the first picture
 
     # ------------------------------------------------------------------ configuration
     num_envs = _fixed("num_envs", "The number of lots (the batch size).")
@@ -367,7 +371,8 @@ class ParkingEnv(EnvBase):
                             indices, columns, drivers(self._agent, aid))
 
     # ------------------------------------------------------------------ EnvBase hooks
-    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: object
+               ) -> TensorDictBase:
         mask = None  # the first reset draws every row, whatever the mask
         if tensordict is not None and "_reset" in tensordict.keys() and self._started:
             mask = tensordict.get("_reset").reshape(self.num_envs).to(self.device, torch.bool)

@@ -149,6 +149,8 @@ class ParkingGoalEnv(ParkingGymEnv):
                             "compute_reward reproduces (use torchpark/Parking-v0 for aids)")
         super().__init__(render_mode, **kwargs)
         paper = self.observation_space
+        if not isinstance(paper, spaces.Box):
+            raise TypeError(f"the paper's observation space must be a Box, got {paper!r}")
         low, high = paper.low, paper.high  # dx, dy bound x, y the same way
         pose_high = np.array([high[0], high[1], np.pi, high[4]], np.float32)
         goal = spaces.Box(-pose_high, pose_high, dtype=np.float32)

@@ -26,7 +26,7 @@ which ``action_space.contains`` refuses too, is refused. Observations are the pa
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -108,10 +108,12 @@ def _spaces(env: ParkingEnv, physical_actions: bool
     return observation, action, scale
 
 
-def _checked_actions(actions: Any, space: spaces.Box, shape: tuple[int, ...],
+def _checked_actions(actions: Any, space: spaces.Space, shape: tuple[int, ...],
                      device: torch.device) -> torch.Tensor:
     """numpy-like actions -> float32 tensor, with a clear error for a wrong shape, a
     non-finite value or a value outside the Box."""
+    if not isinstance(space, spaces.Box):
+        raise TypeError(f"the action space must be a Box, got {space!r}")
     if actions is None:
         raise ValueError(f"action must be an array of shape {shape} = [v m/s, delta rad], "
                          f"got None")
@@ -204,7 +206,8 @@ class ParkingGymEnv(gymnasium.Env):
     (1,000, the env's own limit; ``max_episode_steps=N`` changes it).
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": RENDER_MODES, "render_fps": 10}
+    # an attribute of Gymnasium's Env (set per instance below), so no ClassVar
+    metadata: dict[str, Any] = {"render_modes": RENDER_MODES, "render_fps": 10}  # noqa: RUF012
     occupancy = _batch_occupancy()
 
     def __init__(self, render_mode: str | None = None, *, occupancy: float | None = None,
@@ -281,8 +284,7 @@ class ParkingGymEnv(gymnasium.Env):
         """The observation Gymnasium returns, from the step's (or reset's) output."""
         return td["observation"][0].cpu().numpy()
 
-    @staticmethod
-    def _info(td: TensorDictBase) -> dict[str, Any]:
+    def _info(self, td: TensorDictBase) -> dict[str, Any]:
         info = {key: value[0] for key, value in _numpy_info(td).items()}
         return {**info, "success": bool(info["success"]), "collision": bool(info["collision"]),
                 "occupancy": float(info["occupancy"])}
@@ -305,8 +307,9 @@ class ParkingVectorEnv(VectorEnv):
     step limit.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": VECTOR_RENDER_MODES, "render_fps": 10,
-                                          "autoreset_mode": AutoresetMode.SAME_STEP}
+    metadata: dict[str, Any] = {  # noqa: RUF012 (an attribute of Gymnasium's VectorEnv)
+        "render_modes": VECTOR_RENDER_MODES, "render_fps": 10,
+        "autoreset_mode": AutoresetMode.SAME_STEP}
     occupancy = _batch_occupancy()
 
     def __init__(self, num_envs: int, render_mode: str | None = None, *,

@@ -4,9 +4,11 @@ per-episode runner behind the evaluation report, the tests and the benchmarks.""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
+from tensordict import TensorDictBase
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
@@ -80,7 +82,8 @@ class Episodes:
         return self.timeout & (moved < FREEZE_DISTANCE)
 
 
-def run_episodes(actor, env: TransformedEnv, max_steps: int, desc: str | None = None,
+def run_episodes(actor: Callable[[TensorDictBase], TensorDictBase], env: TransformedEnv,
+                 max_steps: int, desc: str | None = None,
                  thresholds: tuple[float, ...] = SUCCESS_THRESHOLDS,
                  exploration: ExplorationType = ExplorationType.DETERMINISTIC) -> Episodes:
     """Run the policy (deterministic unless ``exploration`` says otherwise, e.g.

@@ -106,6 +106,7 @@ def restore_snapshot(snapshot: object, expected: dict, resets: Resets, world: Wo
     draw), the engine's episodes drawn ahead, ``world``'s success threshold. Returns the
     rows and whether a lot was drawn, for the env to keep."""
     check_snapshot(snapshot, expected, resets, world.goal_poses.shape[0])
+    assert isinstance(snapshot, dict)  # check_snapshot refuses anything else
     # Everything fits: written from here on, nothing can fail half-way. The engine's state
     # is replaced whole, so nothing drawn ahead at the old occupancy or threshold survives.
     resets.draw.occupancy = float(snapshot["occupancy"])

@@ -762,7 +762,7 @@ def distill(teacher_path: str, out: Path, cfg: DistillConfig,
     actor, _ = build_models(scfg)
     exponents = torch.tensor([cfg.speed_exponent, cfg.steer_exponent], device=base.device)
     plan = teacher_planner(cfg, planner)
-    cells = grid_of(build_layout(base.config.lot, base.config.vehicle, "cpu"), plan).count
+    cells = grid_of(build_layout(base.config.lot, base.config.vehicle, "cpu"), plan).cells
     print(f"the teacher's planner: its cost-to-go tables over {cells:,} cells (about 3 min on "
           f"two cores at the default grid; --planner-headings fewer for a coarser one) ...",
           flush=True)

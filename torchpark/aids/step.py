@@ -6,7 +6,6 @@ step, lifted onto it, when there is no aid."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from functools import partial
 from typing import NamedTuple
 
@@ -17,7 +16,7 @@ from torchrl.data import Binary, TensorSpec, Unbounded
 from torchpark.aids.brake import apply_brake, check_margin, steer_angles
 from torchpark.aids.config import AidsConfig
 from torchpark.aids.docking import take_over
-from torchpark.aids.repeat import hold
+from torchpark.aids.repeat import StepFn, hold
 from torchpark.aids.starts import NearDraw, near_start
 from torchpark.config import ParkingConfig
 from torchpark.sim.episodes import LotDraw
@@ -149,8 +148,7 @@ def agent_observation(state: AidedState, world: World, cfg: ParkingConfig) -> Te
     return observe(state.sim, world, cfg)[0]
 
 
-def agent_step(world: World, cfg: ParkingConfig, aids: AidsConfig | None
-               ) -> Callable[[AidedState, Tensor], tuple[AidedState, StepResult, Tensor]]:
+def agent_step(world: World, cfg: ParkingConfig, aids: AidsConfig | None) -> StepFn:
     """The env step an env with ``aids`` runs, ``(state, action) -> (state, out, finite)``:
     :func:`aided_step`, or without aids the paper's own (:func:`paper_step`), held for the
     aids' ``action_repeat`` steps of dt (:func:`~torchpark.aids.repeat.hold`, one function).

@@ -27,11 +27,12 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import torch
 from tensordict import TensorDictBase
 from torch import Tensor
+from torchrl.envs import EnvBase
 
 from torchpark.aids.brake import fence
 from torchpark.aids.docking import error_from_goal
@@ -44,6 +45,9 @@ from torchpark.sim.state import ParkingState
 from torchpark.sim.vehicle import gear_travel, vehicle_obb
 from torchpark.sim.world import World, touches_obstacle
 
+if TYPE_CHECKING:
+    from torchpark.env import ParkingEnv
+
 
 class Grid(NamedTuple):
     """The pose grid: ``size_x`` x ``size_y`` positions ``cell`` m apart from (0, 0) and
@@ -55,7 +59,7 @@ class Grid(NamedTuple):
     headings: int
 
     @property
-    def count(self) -> int:
+    def cells(self) -> int:
         return self.headings * self.size_x * self.size_y
 
 
@@ -162,9 +166,9 @@ def cost_to_go(layout: LotLayout, vehicle: VehicleConfig, cfg: PlannerConfig,
     slots, arcs_k = layout.num_slots, prim.travel.shape[0]
     # per cell, the tables and the arcs' costs (S, per arc and gear), the arcs' end cells,
     # the slot tests' temporaries: 3.6 KB for the paper's lot, as measured (peak RSS)
-    check_fits(grid.count * (slots * (59 + 4 * arcs_k) + 16 * arcs_k + 12),
+    check_fits(grid.cells * (slots * (59 + 4 * arcs_k) + 16 * arcs_k + 12),
                f"PlannerConfig(cell={cfg.cell:g}, headings={cfg.headings}): its grid of "
-               f"{grid.count:,} cells", torch.device(device))
+               f"{grid.cells:,} cells", torch.device(device))
     poses = grid_poses(grid, device)
     ends = cell_index(arcs(poses, prim.travel, prim.curvature), grid)  # (C, K)
     mids = cell_index(arcs(poses, prim.travel / 2, prim.curvature), grid)
@@ -256,7 +260,7 @@ def interpolated_cost(value: Tensor, row: Tensor, pose: Tensor, grid: Grid,
         inside = (ix >= 0) & (ix < grid.size_x) & (iy >= 0) & (iy < grid.size_y)
         index = ((ih * grid.size_x + ix.clamp(0, grid.size_x - 1)) * grid.size_y
                  + iy.clamp(0, grid.size_y - 1))
-        cost = value.reshape(-1)[index + row * grid.count]
+        cost = value.reshape(-1)[index + row * grid.cells]
         costs.append(torch.where(inside, cost, math.inf))
         weights.append((wx if dx else 1 - wx) * (wy if dy else 1 - wy) * (wh if dh else 1 - wh))
     cost, weight = torch.stack(costs, -1), torch.stack(weights, -1)
@@ -355,7 +359,7 @@ class GearHold:
         self.gear = torch.where(fresh, 0.0, gear)
         return self.travel < self.distance
 
-    def keep_in(self, state: ParkingState, env) -> Tensor | None:
+    def keep_in(self, state: ParkingState, env: ParkingEnv) -> Tensor | None:
         """:meth:`keep` for the cars in ``state``, ``env``'s (a ParkingEnv, stepping
         ``action_repeat`` steps of dt per action) before its next action; None when there is
         no hold (``distance`` 0: ``plan_control``'s greedy choice)."""
@@ -382,7 +386,7 @@ class PlannerExpert:
     there takes over in its funnel and the brake stops or steers what would touch, as for a
     checkpoint's policy."""
 
-    def __init__(self, env, config: ExpertConfig | None = None) -> None:
+    def __init__(self, env: EnvBase, config: ExpertConfig | None = None) -> None:
         self.config = config if config is not None else ExpertConfig()
         base = getattr(env, "base_env", env)
         if base.aids != self.config.aids():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeAlias
 
 import imageio.v3 as iio
 import numpy as np
@@ -16,7 +17,7 @@ from torchrl.envs.utils import step_mdp
 from torchpark.env import ParkingEnv
 from torchpark.files import write_file
 
-Policy = TensorDictModuleBase | Callable[[torch.Tensor], torch.Tensor]
+Policy: TypeAlias = TensorDictModuleBase | Callable[[torch.Tensor], torch.Tensor]
 VIDEO_SUFFIXES = (".gif", ".mp4")
 
 

@@ -160,7 +160,7 @@ def picture_envs(renderer: LotRenderer, state: ParkingState, observation: torch.
     goal = state.goal_slot[index].cpu().numpy()
     pose = state.pose[index].cpu().numpy()
     lidar = observation[index, NAV_DIM:].cpu().numpy()
-    drivers = drivers if drivers is not None else [None] * len(rows)
+    labels: list[str | None] = list(drivers) if drivers is not None else [None] * len(rows)
     pictures = [renderer.picture(*row)
-                for row in zip(parked, goal, pose, lidar, drivers, strict=True)]
+                for row in zip(parked, goal, pose, lidar, labels, strict=True)]
     return pictures[0] if len(pictures) == 1 else picture_grid(pictures, columns)

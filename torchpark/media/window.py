@@ -4,6 +4,8 @@ made, at the env's ``render_fps``."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from gymnasium.error import DependencyNotInstalled
 
@@ -22,8 +24,8 @@ class Window:
             raise DependencyNotInstalled(f'render_mode="human" opens a window with pygame, '
                                          f"which is not installed: {EXTRA}") from err
         self._pygame, self.fps, self.title = pygame, fps, title
-        self._screen = None
-        self._clock = None
+        self._screen: Any = None  # pygame's display surface and clock, once shown
+        self._clock: Any = None
 
     def show(self, frame: np.ndarray) -> None:
         """Draw ``frame`` in the window (opened at the frame's size), then wait out the

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -145,7 +146,7 @@ def build_layout(lot: LotConfig, vehicle: VehicleConfig, device: torch.device | 
     goal_xy = slots[:, :2] - _along(slots, vehicle.centre_offset)
     goal_poses = torch.cat((goal_xy, wrap_angle(slots[:, 2:3])), dim=-1)
     walls = _walls(width, height, lot.wall_thickness)
-    f32 = {"dtype": torch.float32, "device": device}
+    f32: dict[str, Any] = {"dtype": torch.float32, "device": device}
     layout = LotLayout(
         width=width, height=height, slots=slots.to(**f32), section=section.to(device),
         mouths=mouths.to(**f32), cars=cars.to(**f32), walls=walls.to(**f32),

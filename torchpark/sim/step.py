@@ -11,6 +11,8 @@ agent-side aids (:mod:`torchpark.aids`) compose these same pieces (:func:`move`,
 
 from __future__ import annotations
 
+from typing import TypeVar, cast
+
 import torch
 from torch import Tensor
 
@@ -23,14 +25,17 @@ from torchpark.sim.state import ParkingState, StepResult
 from torchpark.sim.vehicle import bicycle_step, clamp_action, motion_poses, vehicle_obb
 from torchpark.sim.world import World, touches_obstacle
 
+# Tuples and NamedTuples (nested ones too) of [N, ...] tensors.
+RowsT = TypeVar("RowsT", bound=tuple)
 
-def mux_rows(mask: Tensor, new: tuple, old: tuple) -> tuple:
+
+def mux_rows(mask: Tensor, new: RowsT, old: RowsT) -> RowsT:
     """Field by field, ``new`` where ``mask`` (N,) is set, else ``old``: tuples and
     NamedTuples (nested ones too) of [N, ...] tensors."""
     muxed = (mux_rows(mask, a, b) if isinstance(b, tuple)
              else torch.where(mask.view(-1, *([1] * (a.dim() - 1))), a, b)
              for a, b in zip(new, old, strict=True))
-    return type(old)(*muxed) if hasattr(old, "_fields") else tuple(muxed)
+    return cast(RowsT, type(old)(*muxed) if hasattr(old, "_fields") else tuple(muxed))
 
 
 def move(pose: Tensor, v: Tensor, delta: Tensor, present: Tensor, world: World,
@@ -97,11 +102,11 @@ def new_lots(lots: LotDraw, world: World, cfg: ParkingConfig) -> ParkingState:
     )
 
 
-def take_rows(rows: tuple, index: Tensor | slice) -> tuple:
+def take_rows(rows: RowsT, index: Tensor | slice) -> RowsT:
     """Field by field, the rows ``index`` ((B,) int64, or a slice: views) of tuples and
     NamedTuples (nested ones too) of [N, ...] tensors: [B, ...]."""
     taken = (take_rows(t, index) if isinstance(t, tuple) else t[index] for t in rows)
-    return type(rows)(*taken) if hasattr(rows, "_fields") else tuple(taken)
+    return cast(RowsT, type(rows)(*taken) if hasattr(rows, "_fields") else tuple(taken))
 
 
 def put_rows_(rows: tuple, index: Tensor, new: tuple) -> None:

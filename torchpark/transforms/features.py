@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 
 import torch
+from tensordict import TensorDictBase
 from torch import Tensor
 from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
@@ -85,7 +86,8 @@ class GoalFrameFeatures(Transform):
         features = goal_in_vehicle_frame(observation, self.precision)
         return torch.cat([observation, features], dim=-1)
 
-    def _reset(self, tensordict, tensordict_reset):
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
+               ) -> TensorDictBase:
         return self._call(tensordict_reset)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
@@ -142,7 +144,8 @@ class ClearanceFeatures(Transform):
                                   self.precision)
         return torch.cat([observation, clearance], dim=-1)
 
-    def _reset(self, tensordict, tensordict_reset):
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
+               ) -> TensorDictBase:
         return self._call(tensordict_reset)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
@@ -190,7 +193,8 @@ class GearTravelFeatures(Transform):
         features = torch.stack([gear, travel.clamp(max=self.cap) / self.cap], dim=-1)
         return torch.cat([source, features.to(source.dtype)], dim=-1)
 
-    def _write(self, tensordict, gear: Tensor, travel: Tensor):
+    def _write(self, tensordict: TensorDictBase, gear: Tensor, travel: Tensor
+               ) -> TensorDictBase:
         source = tensordict.get(self.in_keys[0])
         tensordict.set(self.out_keys[0], self._features(source, gear, travel))
         return tensordict
@@ -200,7 +204,8 @@ class GearTravelFeatures(Transform):
         speed = source[..., SPEED]
         return self._features(source, torch.sign(speed), torch.full_like(speed, self.cap))
 
-    def _reset(self, tensordict, tensordict_reset):
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
+               ) -> TensorDictBase:
         speed = tensordict_reset.get(self.in_keys[0])[..., SPEED]
         fresh = torch.ones_like(speed, dtype=torch.bool)
         if self.gear is not None and self.gear.shape == speed.shape and tensordict is not None \
@@ -209,15 +214,19 @@ class GearTravelFeatures(Transform):
         else:
             self.gear, self.travel = torch.zeros_like(speed), torch.zeros_like(speed)
         self.start_rows(fresh)
+        assert self.gear is not None and self.travel is not None  # start_rows set both
         return self._write(tensordict_reset, self.gear, self.travel)
 
     def start_rows(self, rows: Tensor) -> None:
         """The rows ``rows`` (N,) bool start an episode: no gear, a travel of ``cap``."""
+        if self.gear is None or self.travel is None:
+            raise RuntimeError("GearTravelFeatures: start_rows before reset (reset the env first)")
         self.gear = torch.where(rows, 0.0, self.gear)
         self.travel = torch.where(rows, self.cap, self.travel)
 
-    def _step(self, tensordict, next_tensordict):
-        if self.gear is None:
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
+              ) -> TensorDictBase:
+        if self.gear is None or self.travel is None:
             raise RuntimeError("GearTravelFeatures: step before reset (reset the env first)")
         speed = next_tensordict.get(self.in_keys[0])[..., SPEED]
         self.gear, self.travel = gear_travel(speed, self.gear, self.travel, self.step_time)
@@ -228,7 +237,7 @@ class GearTravelFeatures(Transform):
 
 
 def ray_end_gaps(scans: Tensor, now: Tensor, ray_cos: Tensor, ray_sin: Tensor,
-                 length: float, width: float) -> Tensor:
+                 length: float, width: float) -> tuple[Tensor, Tensor]:
     """The gap from the car's box now to where each ray of some LIDAR scans ended, and the
     bearing it lies at.
 
@@ -331,7 +340,8 @@ class ScanMemory(Transform):
         now = self.scan(source)
         return self._features(source, now, self._repeated(now))
 
-    def _reset(self, tensordict, tensordict_reset):
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
+               ) -> TensorDictBase:
         source = tensordict_reset.get(self.in_keys[0])
         now = self.scan(source)
         fresh = torch.ones(now.shape[:-1], dtype=torch.bool, device=now.device)
@@ -344,7 +354,8 @@ class ScanMemory(Transform):
         tensordict_reset.set(self.out_keys[0], self._features(source, now, self.history))
         return tensordict_reset
 
-    def _step(self, tensordict, next_tensordict):
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
+              ) -> TensorDictBase:
         if self.history is None:
             raise RuntimeError("ScanMemory: step before reset (reset the env first)")
         source = next_tensordict.get(self.in_keys[0])
@@ -418,7 +429,7 @@ class SlotGaps(Transform):
         self.register_buffer("edge", box_edge_distance(self.n_rays, config.vehicle.length,
                                                        config.vehicle.width))
 
-    def _call(self, next_tensordict):
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
         source = next_tensordict.get(self.in_keys[0])
         if source.shape[-1] < NAV_DIM:
             raise ValueError(f"{self.in_keys[0]} must have >= {NAV_DIM} features, got shape "
@@ -437,7 +448,8 @@ class SlotGaps(Transform):
 
     forward = _call
 
-    def _reset(self, tensordict, tensordict_reset):
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
+               ) -> TensorDictBase:
         return self._call(tensordict_reset)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:

@@ -44,7 +44,9 @@ class SyncFreeEnv(TransformedEnv):
         if tensordict.device != self.device:
             tensordict = tensordict.to(self.device)
         tensordict, after = base.step_resetting(self.step, tensordict)
-        tensordict, tensordict_ = post_step_mdp_hooks(self)(tensordict, step_mdp(self, tensordict))
+        hooks = post_step_mdp_hooks(self)
+        assert hooks is not None  # a TransformedEnv's, which torchrl always sets
+        tensordict, tensordict_ = hooks(tensordict, step_mdp(self, tensordict))
         done = tensordict.get(("next", "done")).reshape(self.batch_size)
         # torchrl's reset(select_reset_only=True) of the done rows, every step: the reset
         # request holds the mask alone; the base env's part of the reset is ``after``.
