@@ -69,3 +69,13 @@ def test_the_tests_of_one_xdist_group_share_a_worker(request):
     if not getattr(request.config.option, "loadgroup", False):  # set in xdist's workers
         pytest.skip("no --dist loadgroup workers (-n 0, or another --dist)")
     assert request.node.nodeid.endswith(f"@{COMPILED_GROUP}")
+
+
+def test_the_readme_is_a_guide_of_at_most_12_kb_with_its_contents():
+    """The README guides; the reference and the details live on the site (docs/): at most
+    12,000 bytes, and its contents list links every section."""
+    readme = (ROOT / "README.md").read_text()
+    assert len(readme.encode()) <= 12_000
+    sections = [slug(line[3:]) for line in readme.splitlines() if line.startswith("## ")]
+    contents = next(line for line in readme.split("\n\n") if line.startswith("Contents:"))
+    assert [s for s in sections if s != "citation" and f"(#{s})" not in contents] == []
