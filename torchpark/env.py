@@ -25,6 +25,7 @@ of dt it stopped or steered this episode); with the docking law docking_engaged 
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import TYPE_CHECKING
@@ -85,13 +86,13 @@ _WORKING_ROWS = {False: 115, True: 12}
 
 
 def _fixed(name: str, doc: str, attribute: str | None = None) -> property:
-    """A read-only attribute ``name`` (held in ``attribute``, ``_name`` by default), set at
-    construction: the step's functions were built from it, so a new value would be taken by
-    some parts of the env and not others."""
-    held = attribute or "_" + name
+    """A read-only attribute ``name`` (held in ``attribute``, a dotted path from the env;
+    ``_name`` by default), set at construction: the step's functions were built from it, so a
+    new value would be taken by some parts of the env and not others."""
+    held = operator.attrgetter(attribute or "_" + name)
 
     def get(self: ParkingEnv) -> object:
-        return getattr(self, held)
+        return held(self)
 
     def refuse(self: ParkingEnv, value: object) -> None:
         raise AttributeError(f"ParkingEnv.{name} is fixed at construction (the step was built "
@@ -189,7 +190,6 @@ class ParkingEnv(EnvBase):
         # reads it at run time.
         self._world = build_world(self.layout, cfg)
         self._compiled = compile_step = compile_step and compiles("ParkingEnv(compile_step=True)")
-        self._reset_in_step = reset_in_step
         for name, spec in env_specs(n, self.device, cfg, agent).items():
             setattr(self, name, spec)
         engine = RingResets if reset_in_step else HostResets
@@ -219,7 +219,8 @@ class ParkingEnv(EnvBase):
     layout = _fixed("layout", "The lot's geometry (:func:`torchpark.sim.layout.build_layout`).")
     compiled = _fixed("compiled", "Whether the step and the reset's draw are compiled.")
     reset_in_step = _fixed("reset_in_step", "Whether ``step_and_maybe_reset`` resets the "
-                           "rows a step ends inside the step's function.")
+                           "rows a step ends inside the step's function.",
+                           "_resets.reset_in_step")
     aids = _fixed("aids", "The agent-side aids' :class:`~torchpark.aids.config.AidsConfig`, "
                   "None for the paper's env.", "_aids_config")
     world = _fixed("world", "The constants every env shares, read-only, for analysis and tests "

@@ -108,12 +108,10 @@ def _spaces(env: ParkingEnv, physical_actions: bool
     return observation, action, scale
 
 
-def _checked_actions(actions: Any, space: spaces.Space, shape: tuple[int, ...],
+def _checked_actions(actions: Any, space: spaces.Box, shape: tuple[int, ...],
                      device: torch.device) -> torch.Tensor:
     """numpy-like actions -> float32 tensor, with a clear error for a wrong shape, a
     non-finite value or a value outside the Box."""
-    if not isinstance(space, spaces.Box):
-        raise TypeError(f"the action space must be a Box, got {space!r}")
     if actions is None:
         raise ValueError(f"action must be an array of shape {shape} = [v m/s, delta rad], "
                          f"got None")
@@ -218,8 +216,9 @@ class ParkingGymEnv(gymnasium.Env):
         self.render_mode = _check_render_mode(render_mode, RENDER_MODES)
         self.env = _make_batched(1, occupancy, device, seed, compile_step, config, aids,
                                  max_episode_steps, fields)
-        self.observation_space, self.action_space, self._scale = _spaces(
+        self.observation_space, self._action_box, self._scale = _spaces(
             self.env, check_flag(physical_actions, "physical_actions"))
+        self.action_space = self._action_box
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.env.config.vehicle.dt)}
         self._window = None
         if render_mode == "human":  # pygame, or the error naming the extra
@@ -247,7 +246,7 @@ class ParkingGymEnv(gymnasium.Env):
         if self._ended:  # the car would stay where it collided or parked, scored again
             raise gymnasium.error.ResetNeeded("the episode has ended (terminated or truncated) "
                                               "or not begun: call env.reset() before step()")
-        self._action["action"] = _checked_actions(action, self.action_space, (2,),
+        self._action["action"] = _checked_actions(action, self._action_box, (2,),
                                                   self.env.device)[None] * self._scale
         nxt = self.env.step(self._action)["next"]
         terminated, truncated = bool(nxt["terminated"][0, 0]), bool(nxt["truncated"][0, 0])
@@ -323,8 +322,9 @@ class ParkingVectorEnv(VectorEnv):
                                  config, aids, max_episode_steps, fields)
         self.num_envs = num_envs
         self.render_envs = render_envs
-        self.single_observation_space, self.single_action_space, self._scale = _spaces(
+        self.single_observation_space, self._action_box, self._scale = _spaces(
             self.env, check_flag(physical_actions, "physical_actions"))
+        self.single_action_space = self._action_box
         self.observation_space = gymnasium.vector.utils.batch_space(
             self.single_observation_space, num_envs)
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, num_envs)
@@ -366,7 +366,7 @@ class ParkingVectorEnv(VectorEnv):
         ``info["final_obs"]``)."""
         if self._td is None:
             raise RuntimeError("call reset() before step()")
-        self._td["action"] = _checked_actions(actions, self.single_action_space,
+        self._td["action"] = _checked_actions(actions, self._action_box,
                                               (self.num_envs, 2), self.env.device) * self._scale
         out, self._td = self.env.step_and_maybe_reset(self._td)
         nxt = out["next"]

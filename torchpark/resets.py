@@ -286,13 +286,13 @@ class RingResets(Resets):
         super().__init__(draw, step, fields, build, validate_actions)
         self._step_reset, self._reset_rows = self._more
         self._ring = ring
-        self.ring_blocks = self._blocks = ring.cost.shape[0] // self._n
+        self.ring_blocks = ring.cost.shape[0] // self._n
         self._counters = Counters(torch.tensor(0, device=self._device),
                                   torch.tensor(self._n, device=self._device))
         self._bad = torch.tensor(False, device=self._device)
         self._drawn, self._known, self._unread = 1, 0, 0
         # the generator's state before each block was drawn (by slot), for discard
-        self._rng = [draw.generator.get_state()] * self._blocks
+        self._rng = [draw.generator.get_state()] * self.ring_blocks
 
     @staticmethod
     def ahead(blocks_ahead: int) -> tuple[int, str]:
@@ -340,8 +340,8 @@ class RingResets(Resets):
                              f"last read of its counters (its rows stood still)")
         self._known, self._unread = block, 0
         n = self._n
-        while self._drawn < block + self._blocks:
-            slot = self._drawn % self._blocks
+        while self._drawn < block + self.ring_blocks:
+            slot = self._drawn % self.ring_blocks
             self._rng[slot] = self.draw.generator.get_state()
             put_rows_(self._ring, torch.arange(slot * n, (slot + 1) * n, device=self._device),
                       self.draw())
@@ -357,7 +357,7 @@ class RingResets(Resets):
         further, so both draw the same lots next."""
         block = int(self._counters.block)
         if self._drawn > block + 1:
-            self.draw.generator.set_state(self._rng[(block + 1) % self._blocks])
+            self.draw.generator.set_state(self._rng[(block + 1) % self.ring_blocks])
         self._drawn, self._known, self._unread = block + 1, block, 0
 
     def snapshot(self) -> dict[str, Tensor | int]:
@@ -368,11 +368,11 @@ class RingResets(Resets):
     def check(self, snapshot: dict, slots: int) -> None:
         block, used, bad = snapshot["ring_counters"].tolist()
         drawn = snapshot["ring_drawn"]
-        if not (is_integer(drawn) and 0 <= block < drawn <= block + self._blocks
+        if not (is_integer(drawn) and 0 <= block < drawn <= block + self.ring_blocks
                 and 0 <= used <= self._n and bad in (0, 1)):
             raise ValueError(f"snapshot['ring_counters'] (block, used, bad action) and "
                              f"['ring_drawn'] must satisfy 0 <= block < drawn <= block + "
-                             f"{self._blocks}, used in [0, {self._n}], bad 0 or 1; got "
+                             f"{self.ring_blocks}, used in [0, {self._n}], bad 0 or 1; got "
                              f"{(block, used, bad)}, {drawn!r}")
         for i, state in enumerate(snapshot["ring_generators"]):
             check_generator_state(state.clone(), self._device,  # set_state reads whole tensors
