@@ -27,17 +27,16 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 
-import trainers.distill as distill
-from research.teacher_probe import STUDENT, cached, make_teacher, teacher_planner
+from research.teacher_probe import STUDENT, cached, make_teacher
 from torchpark.experts import planner as plan
 from torchpark.runner import run_episodes
 from torchpark.transforms.actions import gear_select, power_map_inverse
 from trainers.agent import TrainedAgent, load_agent
+from trainers.distill.config import DaggerConfig
+from trainers.distill.fit import fit, passes
+from trainers.distill.labels import STUDENT_INPUT
 from trainers.utils import NORMALISED
 
-# The committed student's teacher (results/policy_alone/README.md's commands).
-PLANNER = teacher_planner(96, (0.6, 0.55), 0.2)
-HANDOVER = 50
 WINDOW = 100  # the evaluator's freezing window, steps
 
 
@@ -47,7 +46,7 @@ def labelled_episodes(trained: TrainedAgent, level: float, episodes: int, seed: 
     the sign of the car's speed; per episode its length and whether it froze."""
     exponents = torch.tensor(trained.config.agent.action_exponents)
     env = trained.make_env(episodes, level, seed)
-    teacher = make_teacher(env, PLANNER, handover=HANDOVER)
+    teacher = make_teacher(env)  # the committed student's (the policy_alone preset's)
     high = env.base_env.action_spec.space.high[0]
     policy = trained.policy
     steps: dict[str, list] = {"inputs": [], "student": [], "label": [], "moving": []}
@@ -55,7 +54,7 @@ def labelled_episodes(trained: TrainedAgent, level: float, episodes: int, seed: 
     def actor(td):
         steps["moving"].append(torch.sign(env.base_env.state.speed))
         steps["label"].append(power_map_inverse(teacher.label(), high, exponents))
-        steps["inputs"].append(td[distill.STUDENT_INPUT].clone())
+        steps["inputs"].append(td[STUDENT_INPUT].clone())
         td = policy(td)
         steps["student"].append(td["action"].clone())
         return td
@@ -137,12 +136,13 @@ def fit_probe(trained: TrainedAgent, data: list[dict], epochs: int) -> str:
         columns["weight"].append(torch.where(frozen[mask], 5.0, 1.0))
         columns["even"].append((torch.arange(n) % 2 == 0)[None, :].expand_as(mask)[mask])
     x, y, w, even, frozen = (torch.cat(v) for v in columns.values())
-    cfg = distill.DistillConfig(lr=1e-4, steer_bins=body.bins)
+    cfg = DaggerConfig(lr=1e-4)
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
-    distill.fit(actor, norm, x[even], y[even], w[even], epochs, cfg, optim,
-                torch.Generator().manual_seed(0))
+    order, _ = passes(int(even.sum()), int(even.sum()), epochs, 0.0,
+                      torch.Generator().manual_seed(0))
+    fit(actor, norm, x[even], y[even], w[even], order, cfg, optim)
     with torch.no_grad():
-        u = body.action(norm(TensorDict({distill.STUDENT_INPUT: x}, [x.shape[0]]))[NORMALISED])
+        u = body.action(norm(TensorDict({STUDENT_INPUT: x}, [x.shape[0]]))[NORMALISED])
     off = off_bins(body, u, y)
     return "; ".join(
         f"{name} lots: {(off[m].abs() >= 2).float().mean():.3f} of all states, "

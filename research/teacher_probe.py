@@ -2,15 +2,15 @@
 its brake, per occupancy level, and in which phase the brake acts (research/experiments.md).
 From the repository's root, the committed student's teacher:
 
-    python -m research.teacher_probe --headings 96 --funnel 0.6 0.55 --handover 50 \
-        --car-margin 0.2 --levels 0 0.9 --cache /tmp/tables
+    python -m research.teacher_probe --levels 0 0.9 --cache /tmp/tables [key=value ...]
 
-Without those four options it is the teacher before the look-ahead (that of
-research/results/reverse_margin/: the expert of ``results/fast/`` with ``--settle 0.05
---retry 1 --gear-hold 0.75 --target-lateral 0.25 --target-heading 0.12 --reverse-margin
-0.5``). The lots are the evaluator's (``--seed 1``, 200 a level), through the committed
-student's env. ``--cache`` keeps each planner's tables (a torch file of one tensor) between
-runs: the 96-heading tables take about 6 min to build on two cores.
+The teacher is the ``policy_alone`` preset's (``trainers.distill.config``), changed by
+dot-list overrides of its ``teacher`` section; e.g. the teacher before the look-ahead (that
+of research/results/reverse_margin/): ``teacher.planner.headings=64
+teacher.planner.law_lateral=null teacher.planner.law_heading=null teacher.handover=0
+teacher.planner.car_margin=0``. The lots are the evaluator's (``--seed 1``, 200 a level),
+through the committed student's env. ``--cache`` keeps each planner's tables (a torch file
+of one tensor) between runs: the 96-heading tables take about 6 min to build on two cores.
 """
 
 from __future__ import annotations
@@ -22,16 +22,16 @@ from pathlib import Path
 
 import torch
 
-import trainers.distill as distill
+from torchpark.experts import Teacher
 from torchpark.experts import planner as plan
 from torchpark.experts.config import PlannerConfig
 from torchpark.runner import run_episodes
 from torchpark.transforms.actions import gear_inverse, power_map_inverse
 from trainers.checkpoint import load_trained
+from trainers.distill.config import load_distill_config
 from trainers.evaluate import checkpoint_agent, level_row
 
 STUDENT = "results/policy_alone/checkpoint_best.pt"
-TEACHER = "results/fast/checkpoint_final.pt"
 
 
 def cached(cache: Path):
@@ -56,22 +56,10 @@ def cached(cache: Path):
     return cost_to_go
 
 
-def teacher_planner(headings: int, funnel: tuple[float, float] | None, car_margin: float
-                    ) -> PlannerConfig:
-    """The teacher's planner: the committed student's target and gear hold, with ``headings``,
-    the law's ``funnel`` (lateral m, heading rad; None: the target's) and ``car_margin`` m
-    (the committed student's: 96, (0.6, 0.55), 0.2)."""
-    law = {} if funnel is None else dict(law_lateral=funnel[0], law_heading=funnel[1])
-    return PlannerConfig(headings=headings, gear_hold=0.75, lateral=0.25, heading=0.12,
-                         car_margin=car_margin, **law)
-
-
-def make_teacher(env, planner: PlannerConfig, reverse_margin: float = 0.5, handover: int = 0
-                 ) -> distill.Teacher:
-    """The distiller's teacher on ``env``: ``TEACHER``'s aids with the committed law's settle
-    and retry, ``planner``, ``reverse_margin`` m and ``handover`` steps."""
-    return distill.Teacher(TEACHER, env, settle=0.05, retry=1.0, planner=planner,
-                           reverse_margin=reverse_margin, handover=handover)
+def make_teacher(env, overrides: list[str] | None = None) -> Teacher:
+    """The committed student's teacher on ``env`` (the ``policy_alone`` preset's), with
+    dot-list ``overrides`` of its config (``teacher.handover=0``, ...)."""
+    return Teacher(load_distill_config("policy_alone", overrides).teacher, env)
 
 
 def main() -> None:
@@ -79,28 +67,22 @@ def main() -> None:
     parser.add_argument("--levels", type=float, nargs="+", default=[0.0, 0.9])
     parser.add_argument("--episodes", type=int, default=200)
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--headings", type=int, default=64)
-    parser.add_argument("--funnel", type=float, nargs=2, default=None,
-                        metavar=("LATERAL", "HEADING"))
-    parser.add_argument("--handover", type=int, default=0)
-    parser.add_argument("--car-margin", type=float, default=0.0)
-    parser.add_argument("--reverse-margin", type=float, default=0.5)
     parser.add_argument("--cache", type=Path, default=None)
+    parser.add_argument("overrides", nargs="*", help="the teacher's config as key=value")
     args = parser.parse_args()
     if args.cache is not None:
         plan.cost_to_go = cached(args.cache)
-    planner = teacher_planner(args.headings, args.funnel, args.car_margin)
     exponents = torch.tensor(load_trained(STUDENT)[0].agent.action_exponents)
     agent = checkpoint_agent(STUDENT)
     for level in args.levels:
-        probe_level(agent, level, args, planner, exponents)
+        probe_level(agent, level, args, exponents)
 
 
-def probe_level(agent, level: float, args: argparse.Namespace, planner: PlannerConfig,
-                exponents: torch.Tensor) -> None:
+def probe_level(agent, level: float, args: argparse.Namespace, exponents: torch.Tensor
+                ) -> None:
     """One level's episodes, the teacher driving; prints its row."""
     env = agent.make_env(level, args.episodes, args.seed)
-    teacher = make_teacher(env, planner, args.reverse_margin, args.handover)
+    teacher = make_teacher(env, args.overrides)
     high = env.base_env.action_spec.space.high[0]
     braked = torch.zeros(args.episodes, dtype=torch.bool)
     in_law = torch.zeros_like(braked)

@@ -13,8 +13,8 @@ from torchrl.data import Bounded
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from trainers.config import check_agent, load_config, replace
-from trainers.distill import DistillConfig, imitation_error
-from trainers.heads import BinnedGearHead
+from trainers.distill.config import load_distill_config
+from trainers.heads import BinnedGearHead, imitation_error
 from trainers.utils import make_ppo_models
 
 
@@ -95,8 +95,8 @@ def test_a_fit_keeps_the_likelier_of_two_angles_where_a_regression_averages_them
 def test_ppo_and_a_student_without_the_gear_head_refuse_the_bins_by_name():
     with pytest.raises(ValueError, match=r"model\.steer_bins"):
         load_config("smoke", ["model.steer_bins=9"])
-    with pytest.raises(ValueError, match=r"DistillConfig\.steer_bins"):
-        DistillConfig(steer_bins=4)
+    with pytest.raises(ValueError, match=r"^student\.model\.steer_bins"):
+        load_distill_config("smoke", ["student.model.steer_bins=4"])
     cfg = load_config("smoke")
     with pytest.raises(ValueError, match=r"model\.steer_bins"):
         check_agent(replace(cfg, model=replace(cfg.model, steer_bins=9)))

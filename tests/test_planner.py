@@ -280,7 +280,7 @@ def test_the_expert_is_evaluated_like_a_checkpoint(tmp_path, capsys):
     rows = evaluate_agent(agent, episodes=4, levels=(0.0,))
     assert rows[0]["agent"] == "hand-written: approach planner + emergency brake + docking law"
     assert rows[0]["collision"] == 0.0 and 0 <= rows[0]["success"] <= 1
-    with pytest.raises(ValueError, match=r"--expert must be one of \['planner'\]"):
+    with pytest.raises(ValueError, match=r"--expert must be one of \['planner', 'teacher'\]"):
         load_expert("oracle")
     for argv, message in ((["--expert", "planner"], "--expert needs --out DIR"),
                           (["x.pt", "--expert", "planner", "--out", str(tmp_path)],

@@ -71,13 +71,13 @@ def test_the_evaluation_names_the_file_and_the_field_of_a_crafted_state(
 
 
 def test_an_empty_out_is_refused_by_every_command(capsys):
-    from trainers.distill import main as distill
+    from trainers.distill.cli import main as distill
     from trainers.evaluate import main as evaluator
     from trainers.plots import main as plots
     from trainers.sb3_paper import main as paper
 
     for command, argv in ((main, []), (paper, []), (evaluator, ["--expert", "planner"]),
-                          (plots, ["results/her"]), (distill, ["teacher.pt"])):
+                          (plots, ["results/her"]), (distill, [])):
         with pytest.raises(SystemExit) as refused:
             command([*argv, "--out", ""])
         assert refused.value.code == 2

@@ -412,10 +412,12 @@ def test_a_sampled_evaluation_is_seeded_and_says_so(smoke_run, tmp_path, capsys)
     (["observe_brake=true"], "--aids takes NAME=VALUE with NAME one of brake, docking"),
     (["action_repeat=5"], "--aids takes NAME=VALUE with NAME one of brake, docking"),
     (["docking"], "--aids takes NAME=VALUE"),
-    (["brake.steer_clear=1"], "BrakeConfig.steer_clear must be 0 or an int in [2, 1024]"),
+    (["brake.steer_clear=1"], "agent.aids.brake.steer_clear (BrakeConfig.steer_clear) must be 0 "
+                              "or an int in [2, 1024]"),
     (["brake.steer_clear=True"], "agent.aids.brake.steer_clear: Value 'True'"),
     (["brake.stear_clear=5"], "Key 'stear_clear' not in 'BrakeConfig'"),
-    (["docking.reach=nan"], "DockingConfig.reach must be a finite number > 0"),
+    (["docking.reach=nan"], "agent.aids.docking.reach (DockingConfig.reach) must be a finite "
+                            "number > 0"),
     (["docking.heading=-1"], "DockingConfig.heading"),
 ])
 def test_evaluation_refuses_bad_aids_by_name(smoke_run, tmp_path, capsys, aids, message):

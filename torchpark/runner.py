@@ -120,10 +120,13 @@ def run_episodes(actor: Callable[[TensorDictBase], TensorDictBase], env: Transfo
             for key in outcome:
                 outcome[key] |= first & nxt[key][:, 0].cpu()
             length[first] = step
-            if DOCKING_ENGAGED in nxt.keys():
-                docked[first] = nxt[DOCKING_ENGAGED][:, 0].cpu()[first]
-            if INTERVENTIONS in nxt.keys():
-                braked[first] = nxt[INTERVENTIONS][:, 0].cpu()[first] > 0
+            # the env's aids' flags, or those a policy composing its own aids wrote beside
+            # its action (torchpark.experts.Teacher)
+            flags = nxt if DOCKING_ENGAGED in nxt.keys() else td
+            if DOCKING_ENGAGED in flags.keys():
+                docked[first] = flags[DOCKING_ENGAGED][:, 0].cpu()[first]
+            if INTERVENTIONS in flags.keys():
+                braked[first] = flags[INTERVENTIONS][:, 0].cpu()[first] > 0
             steps[first] = base.state.steps.cpu()[first].float()
             poses.append(torch.where(ended[:, None], poses[-1], base.state.pose.cpu()))
             ended |= first

@@ -11,6 +11,7 @@ import dataclasses
 import importlib.util
 import math
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 from omegaconf import OmegaConf
@@ -235,29 +236,71 @@ PRESETS = {"fast": _fast, "gpu": _gpu, "smoke": _smoke}
 
 def load_config(preset: str, overrides: list[str] | None = None) -> TrainConfig:
     """The preset's config with dot-notation overrides applied and checked."""
-    if preset not in PRESETS:
-        raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
-    cfg = override(PRESETS[preset](), overrides or [])
-    _check(cfg)
+    return load_preset(PRESETS, preset, overrides, _check)
+
+
+ConfigT = typing.TypeVar("ConfigT")
+
+
+def load_preset(presets: dict[str, Callable[[], ConfigT]], preset: str,
+                overrides: list[str] | None, check: Callable[[ConfigT], None]) -> ConfigT:
+    """``presets[preset]``'s config (a recipe's) with dot-notation overrides applied, then
+    ``check``-ed."""
+    if preset not in presets:
+        raise ValueError(f"preset must be one of {sorted(presets)}, got {preset!r}")
+    cfg = override(presets[preset](), overrides or [])
+    check(cfg)
     return cfg
 
 
-def override(cfg: TrainConfig, overrides: list[str]) -> TrainConfig:
-    """A copy of ``cfg`` with dot-notation overrides applied, their types checked (OmegaConf);
-    a ValueError names the field of an unknown key or a wrong type. Ranges: the caller's."""
+def override(cfg: ConfigT, overrides: list[str]) -> ConfigT:
+    """A copy of ``cfg`` (a config dataclass: a TrainConfig, a distiller's DistillConfig) with
+    dot-notation overrides applied, their types checked (OmegaConf); a ValueError names the
+    field of an unknown key or a wrong type. Ranges: the caller's."""
     try:
         given = OmegaConf.from_dotlist(overrides)
-        check_flags(OmegaConf.to_container(given))
+        check_flags(OmegaConf.to_container(given), type(cfg))
         merged = OmegaConf.merge(OmegaConf.structured(cfg), given)
-        return OmegaConf.to_object(merged)
+        try:
+            return OmegaConf.to_object(merged)
+        except ValueError as err:  # a section's own check, in its class's words
+            raise ValueError(by_dot_name(str(err), type(cfg), list(dotted(
+                OmegaConf.to_container(given))))) from None
     except OmegaConfBaseException as err:  # a type error or an unknown key, by dot name
         key = getattr(err, "full_key", None)
         message = getattr(err, "msg", None) or str(err).splitlines()[0]
         raise ValueError(f"{key}: {message}" if key else message) from None
 
 
+def sections(schema: type, prefix: str = "") -> dict[str, type]:
+    """Every section of the config dataclass ``schema`` (optional ones included) by dot
+    name: {"agent.aids": AidsConfig, ...}."""
+    found: dict[str, type] = {}
+    for name, kind in typing.get_type_hints(schema).items():
+        nested = [k for k in (*typing.get_args(kind), kind) if dataclasses.is_dataclass(k)]
+        if nested:
+            found[f"{prefix}{name}"] = nested[0]
+            found.update(sections(nested[0], f"{prefix}{name}."))
+    return found
+
+
+def by_dot_name(message: str, schema: type, given: list[str]) -> str:
+    """A section's error (``"PlannerConfig.law_lateral must be ..."``) led by the field's dot
+    name in ``schema`` (``"teacher.planner.law_lateral (PlannerConfig.law_lateral) must be
+    ..."``): the section of that class, or of the sections of that class the one an
+    override in ``given`` (dot names) set. Unchanged where neither tells."""
+    owner, dot, rest = message.partition(".")
+    field, space, tail = rest.partition(" ")
+    places = [name for name, kind in sections(schema).items() if kind.__name__ == owner]
+    if dot and len(places) > 1:
+        places = [p for p in places if any(g == p or g.startswith(f"{p}.") for g in given)]
+    if not dot or not space or len(places) != 1:
+        return message
+    return f"{places[0]}.{field} ({owner}.{field}) {tail}"
+
+
 def check_flags(values: dict, schema: type = TrainConfig, prefix: str = "") -> None:
-    """ValueError naming the field where ``values`` (a nested dict of a TrainConfig's fields)
+    """ValueError naming the field where ``values`` (a nested dict of ``schema``'s fields)
     gives a bool field anything but true or false (an optional one: or null): OmegaConf would
     turn 2, "yes" or "on" into True, which torchpark's own configs refuse."""
     hints = typing.get_type_hints(schema)
@@ -271,6 +314,47 @@ def check_flags(values: dict, schema: type = TrainConfig, prefix: str = "") -> N
         elif set(typing.get_args(kind)) == {bool, type(None)} and not (
                 value is None or isinstance(value, bool)):
             raise ValueError(f"{prefix}{key} must be true, false or null, got {value!r}")
+
+
+def dotted(values: object, name: str = "") -> dict[str, object]:
+    """A nested dict of config fields (``dataclasses.asdict``) as {dot name: value}, under
+    ``name`` (a None section is a value)."""
+    if not isinstance(values, dict):
+        return {name: values}
+    return {k: v for key, value in values.items()
+            for k, v in dotted(value, f"{name}.{key}" if name else key).items()}
+
+
+def differences(saved: dict, now: dict, defaults: dict, free: tuple = ()
+                ) -> list[tuple[str, object, object]]:
+    """(dot name, saved value, value now) of each field where a run's saved config differs
+    from this one's (nested dicts of config fields), leaving out the dot names in ``free``.
+    A field the saved config lacks (added to the config after it was written) is its value
+    in ``defaults``, which does what the code did before the field existed."""
+    ours = dotted(now)
+    theirs = {**dotted(defaults), **dotted(saved)}
+    return [(k, theirs.get(k), ours.get(k)) for k in sorted(set(ours) | set(theirs))
+            if theirs.get(k) != ours.get(k) and k not in free]
+
+
+def has_field(schema: type, name: str) -> bool:
+    """Whether the dot name ``name`` is a field of the config dataclass ``schema`` (through
+    its sections, optional ones included)."""
+    head, _, rest = name.partition(".")
+    fields = {f.name for f in dataclasses.fields(schema)}
+    if head not in fields:
+        return False
+    if not rest:
+        return True
+    kind = typing.get_type_hints(schema)[head]
+    nested = [k for k in (*typing.get_args(kind), kind) if dataclasses.is_dataclass(k)]
+    return bool(nested) and has_field(nested[0], rest)
+
+
+def field_lines(cfg: object) -> str:
+    """Every field of a config tree as ``dot.name = value`` lines (the preset's), for
+    ``--help``."""
+    return "\n".join(f"  {k} = {v!r}" for k, v in dotted(dataclasses.asdict(cfg)).items())
 
 
 def env_configs(cfg: TrainConfig, training: bool) -> tuple[ParkingConfig, AidsConfig | None]:
@@ -305,16 +389,10 @@ def _check(cfg: TrainConfig) -> None:
     require(loss.ppo_epochs >= 1, "loss.ppo_epochs", "an int >= 1", loss.ppo_epochs)
     require(finite(cfg.optim.lr) and cfg.optim.lr > 0, "optim.lr", "a finite number > 0",
              cfg.optim.lr)
-    require(len(cfg.model.hidden) >= 1 and min(cfg.model.hidden) >= 1, "model.hidden",
-             "a non-empty list of ints >= 1", cfg.model.hidden)
+    check_model(cfg.model)
     require(cfg.model.steer_bins == 0, "model.steer_bins", "0 for PPO (a binned steering "
             "is chosen by an argmax, which has no gradient: a distilled student's only)",
             cfg.model.steer_bins)
-    # Beyond e^2 the TanhNormal's pre-tanh draws saturate (every action at a bound); beyond
-    # e^88 its std overflows float32 and the first batch's actions are NaN.
-    require(finite(cfg.model.init_log_std) and -20 <= cfg.model.init_log_std <= 2,
-             "model.init_log_std", "a number in [-20, 2] (the log of the policy's first std)",
-             cfg.model.init_log_std)
     require(cfg.logger.checkpoint_every >= 1, "logger.checkpoint_every", "an int >= 1",
              cfg.logger.checkpoint_every)
     require(cfg.logger.exp_name not in ("", ".", "..") and "/" not in cfg.logger.exp_name,
@@ -340,24 +418,46 @@ def _check(cfg: TrainConfig) -> None:
     _check_dist(cfg)
 
 
-def check_agent(cfg: TrainConfig) -> None:
+def check_model(model: ModelConfig, name: str = "model") -> None:
+    """The network's sizes and first std (``name``: the section's dot name)."""
+    require(len(model.hidden) >= 1 and min(model.hidden) >= 1, f"{name}.hidden",
+            "a non-empty list of ints >= 1", model.hidden)
+    # Beyond e^2 the TanhNormal's pre-tanh draws saturate (every action at a bound); beyond
+    # e^88 its std overflows float32 and the first batch's actions are NaN.
+    require(math.isfinite(model.init_log_std) and -20 <= model.init_log_std <= 2,
+            f"{name}.init_log_std", "a number in [-20, 2] (the log of the policy's first "
+            "std)", model.init_log_std)
+    require(model.steer_bins == 0 or 3 <= model.steer_bins <= 255,
+            f"{name}.steer_bins", "0, or an odd int in [3, 255]", model.steer_bins)
+
+
+def check_agent(cfg: TrainConfig, prefix: str = "") -> None:
     """The agent's transforms against its aids (the aids' and the task's own fields are
-    checked by their dataclasses as they are built)."""
+    checked by their dataclasses as they are built); ``prefix``: the dot name of the run's
+    config in a larger one (a distiller's ``student.``)."""
     agent = cfg.agent
-    require(not agent.observe_brake or agent.aids.brake is not None, "agent.observe_brake",
-            "False without agent.aids.brake (there is no brake flag to observe)",
+    require(not agent.observe_brake or agent.aids.brake is not None,
+            f"{prefix}agent.observe_brake",
+            f"False without {prefix}agent.aids.brake (there is no brake flag to observe)",
             agent.observe_brake)
     require(not agent.gear_head or agent.action_exponents is not None,
-            "agent.gear_head", "False without agent.action_exponents (the gear picks a pair "
-            "of [-1, 1] actions for the power map)", agent.gear_head)
-    require(0 <= agent.scan_memory <= 64, "agent.scan_memory", "an int in [0, 64] (past "
-            "scans remembered)", agent.scan_memory)
-    require(not agent.slot_features or agent.aids.observe_position, "agent.slot_features",
-            "False without agent.aids.observe_position (the slots are found from the car's "
-            "position)", agent.slot_features)
+            f"{prefix}agent.gear_head", f"False without {prefix}agent.action_exponents (the "
+            f"gear picks a pair of [-1, 1] actions for the power map)", agent.gear_head)
+    exponents = agent.action_exponents
+    require(exponents is None or (len(exponents) == 2
+                                  and all(1.0 <= e <= 8.0 for e in exponents)),
+            f"{prefix}agent.action_exponents", "null or two numbers in [1, 8] (speed, steer)",
+            exponents)
+    require(0 <= agent.scan_memory <= 64, f"{prefix}agent.scan_memory", "an int in [0, 64] "
+            "(past scans remembered)", agent.scan_memory)
+    require(not agent.slot_features or agent.aids.observe_position,
+            f"{prefix}agent.slot_features", f"False without {prefix}agent.aids."
+            f"observe_position (the slots are found from the car's position)",
+            agent.slot_features)
     bins = cfg.model.steer_bins
-    require(bins == 0 or (bins >= 3 and bins % 2 == 1 and agent.gear_head), "model.steer_bins",
-            "0, or an odd int >= 3 with agent.gear_head (the bins steer each gear)", bins)
+    require(bins == 0 or (bins >= 3 and bins % 2 == 1 and agent.gear_head),
+            f"{prefix}model.steer_bins", f"0, or an odd int >= 3 with {prefix}agent.gear_head "
+            f"(the bins steer each gear)", bins)
 
 
 def _check_dist(cfg: TrainConfig) -> None:
@@ -389,4 +489,5 @@ def _check_dist(cfg: TrainConfig) -> None:
 
 
 
-__all__ = ["PRESETS", "TrainConfig", "check_agent", "load_config", "override", "replace"]
+__all__ = ["PRESETS", "TrainConfig", "check_agent", "check_model", "differences", "dotted",
+           "field_lines", "has_field", "load_config", "load_preset", "override", "replace"]

@@ -3,7 +3,7 @@
     python -m trainers.evaluate CHECKPOINT [--episodes 200] [--out DIR] [--seed 1]
                                            [--videos mp4|gif|none] [--aids NAME=VALUE ...]
                                            [--sample TORCH_SEED] [--collision-substeps K]
-    python -m trainers.evaluate --expert planner --out DIR [...]
+    python -m trainers.evaluate --expert planner|teacher --out DIR [...]
 
 Runs the deterministic policy (the TanhNormal's mode; with ``--sample S``, actions drawn from
 the policy's distribution, torch seeded with S at each level) for ``--episodes``
@@ -25,7 +25,8 @@ in the table) is the agent's task's, the paper's end pose unless trained otherwi
 (``ParkingConfig.collision_substeps``).
 ``--expert planner`` evaluates the hand-written agent (:mod:`torchpark.experts`: approach
 planner, docking law, brake) on the same lots, as a reference any learned agent can be set
-beside.
+beside; ``--expert teacher`` the distiller's teacher (the same parts composed outside a
+paper's env, with the labels the committed policy alone was distilled from).
 """
 
 from __future__ import annotations
@@ -44,12 +45,13 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchpark import AidsConfig, ParkingConfig, ParkingEnv
 from torchpark.config import MAX_COLLISION_SUBSTEPS, SEED_LIMIT, check_seed, is_integer
 from torchpark.curriculum import PAPER_LEVELS
-from torchpark.experts import ExpertConfig, PlannerExpert
+from torchpark.experts import ExpertConfig, PlannerExpert, Teacher, TeacherConfig
 from torchpark.files import directory_arg, locked, write_csv, write_text
 from torchpark.media.recording import record_video
 from torchpark.runner import Episodes, run_episodes
 from trainers.agent import load_agent
 from trainers.config import TrainConfig, check_agent, check_device, override
+from trainers.distill.config import PRESETS as DISTILL_PRESETS
 
 # Table 2 of the paper: success rate per curriculum phase (occupancy level).
 PAPER_SUCCESS = dict(zip(PAPER_LEVELS, (0.20, 0.52, 0.65, 0.64, 0.59, 0.62), strict=True))
@@ -67,7 +69,9 @@ COLUMNS = COMPOSITION + RESULTS
 # memory).
 MAX_EPISODES = 1_000_000
 # The hand-written agents --expert names (torchpark.experts), and their COMPOSITION policy.
-EXPERTS = {"planner": "the approach planner (torchpark.experts.PlannerExpert), hand-written"}
+EXPERTS = {"planner": "the approach planner (torchpark.experts.PlannerExpert), hand-written",
+           "teacher": "the distiller's teacher (torchpark.experts.Teacher, the policy_alone "
+                      "preset's), hand-written"}
 EVALUATION_AIDS = ("brake", "docking")
 
 
@@ -233,17 +237,31 @@ def paper_lots(aids: AidsConfig | None = None, device: str = "cpu", collision_su
     return make_env
 
 
-def load_expert(name: str, device: str = "cpu", collision_substeps: int = 1) -> Agent:
+def load_expert(name: str, device: str = "cpu", collision_substeps: int = 1,
+                config: ExpertConfig | None = None) -> Agent:
     """A hand-written agent (EXPERTS) on ``device``: the paper's env (with
-    ``collision_substeps`` poses tested per step of dt) with the expert's aids, its policy
-    reading the env's state (:class:`torchpark.experts.PlannerExpert`)."""
+    ``collision_substeps`` poses tested per step of dt) and its policy reading the env's
+    state. ``planner``: :class:`torchpark.experts.PlannerExpert` in an env with its aids;
+    ``teacher``: the distiller's :class:`torchpark.experts.Teacher` (the ``policy_alone``
+    preset's, :mod:`trainers.distill.config`) in the paper's env, composing its aids itself.
+    ``config``: the expert's config instead of its default (an ExpertConfig for the planner,
+    a TeacherConfig for the teacher)."""
     if name not in EXPERTS:
         raise ValueError(f"--expert must be one of {list(EXPERTS)}, got {name!r}")
     check_device(device, "--device")
-    config = ExpertConfig()
-    return Agent(paper_lots(config.aids(), device, collision_substeps),
-                 lambda env: PlannerExpert(env, config), ParkingConfig().max_steps,
-                 composition(config.aids(), EXPERTS[name], expert=True), collision_substeps)
+    if name == "teacher":
+        teacher = config if config is not None else DISTILL_PRESETS["policy_alone"]().teacher
+        if not isinstance(teacher, TeacherConfig):
+            raise ValueError(f"the teacher's config must be a TeacherConfig, got "
+                             f"{type(teacher).__name__}")
+        return Agent(paper_lots(None, device, collision_substeps),
+                     lambda env: Teacher(teacher, env), ParkingConfig().max_steps,
+                     composition(teacher.aids(), EXPERTS[name], expert=True),
+                     collision_substeps)
+    expert = config if config is not None else ExpertConfig()
+    return Agent(paper_lots(expert.aids(), device, collision_substeps),
+                 lambda env: PlannerExpert(env, expert), ParkingConfig().max_steps,
+                 composition(expert.aids(), EXPERTS[name], expert=True), collision_substeps)
 
 
 def evaluate_agent(agent: Agent, episodes: int, levels=PAPER_LEVELS, seed: int = 1,

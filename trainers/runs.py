@@ -17,7 +17,7 @@ from torchpark._compat import collector_carrier
 from torchpark.files import save_torch
 from trainers.checkpoint import EVALUATION_KEYS, RESUME_KEYS, load_checkpoint, load_weights
 from trainers.collection import RankCollection
-from trainers.config import TrainConfig
+from trainers.config import TrainConfig, differences
 from trainers.distributed import World, check_ranks_agree, gather_to_main
 from trainers.utils import reset_exploration
 
@@ -98,25 +98,15 @@ def rank_states(checkpoint: dict, cfg: TrainConfig) -> list[dict] | None:
     return states
 
 
-def _dotted(values: object, name: str) -> dict[str, object]:
-    """A nested dict of a config section as {dot name: value} (a None section is a value)."""
-    if not isinstance(values, dict):
-        return {name: values}
-    return {k: v for key, value in values.items() for k, v in _dotted(value, f"{name}.{key}")
-            .items()}
-
-
 def config_differences(saved: dict, cfg: TrainConfig, section: str, free: tuple = ()) -> str:
     """The fields of ``cfg``'s ``section`` that differ from a checkpoint's saved config, as
     ``"section.field=<saved> in the checkpoint, <now> now"`` (empty when none do), leaving
-    out the dot names in ``free``. A field the checkpoint lacks (added to the config after it
-    was written) is its default, which does what the code did before the field existed."""
-    now = _dotted(dataclasses.asdict(getattr(cfg, section)), section)
-    old = {**_dotted(dataclasses.asdict(getattr(TrainConfig(), section)), section),
-           **_dotted(saved.get(section, {}), section)}
-    return ", ".join(f"{k}={old.get(k)!r} in the checkpoint, {now.get(k)!r} now"
-                     for k in sorted(set(old) | set(now))
-                     if old.get(k) != now.get(k) and k not in free)
+    out the dot names in ``free`` (:func:`trainers.config.differences`)."""
+    return ", ".join(f"{k}={old!r} in the checkpoint, {now!r} now" for k, old, now in
+                     differences({section: saved.get(section, {})},
+                             {section: dataclasses.asdict(getattr(cfg, section))},
+                             {section: dataclasses.asdict(getattr(TrainConfig(), section))},
+                             free))
 
 
 def prepare(cfg: TrainConfig, resume: str | None, overwrite: bool, init: str | None = None

@@ -1,6 +1,7 @@
-"""Configuration of the hand-written expert: the approach planner (:mod:`torchpark.experts.planner`)
-and the agent it drives with (:class:`ExpertConfig`). Units: metres, seconds,
-radians."""
+"""Configuration of the hand-written experts: the approach planner
+(:mod:`torchpark.experts.planner`), the agent it drives with (:class:`ExpertConfig`) and the
+distiller's teacher, the same parts composed outside the env (:class:`TeacherConfig`).
+Units: metres, seconds, radians."""
 
 from __future__ import annotations
 
@@ -64,6 +65,8 @@ class PlannerConfig:
         check_types(self)
         for name in ("cell", "step", "control_step", "speed", "reach", "lateral", "heading"):
             positive(f"PlannerConfig.{name}", getattr(self, name))
+        require(self.heading <= math.pi, "PlannerConfig.heading", "in (0, pi] (rad)",
+                self.heading)
         for name, high in (("reach", math.inf), ("lateral", math.inf), ("heading", math.pi)):
             value, low = getattr(self, f"law_{name}"), getattr(self, name)
             require(value is None or (low <= value <= high and math.isfinite(value)),
@@ -112,3 +115,32 @@ class ExpertConfig:
     def aids(self) -> AidsConfig:
         """The aids the expert's env is built with: its docking law and brake."""
         return AidsConfig(docking=self.planner.law_funnel(self.docking), brake=self.brake)
+
+
+# The teacher's longest look-ahead before its law takes over (TeacherConfig.handover), steps
+# of dt.
+HANDOVER_LIMIT = 1000
+
+
+@dataclass(frozen=True)
+class TeacherConfig(ExpertConfig):
+    """The distiller's teacher (:class:`~torchpark.experts.teacher.Teacher`): the expert's
+    planner, docking law and brake, composed outside the env around a car of the paper's env
+    and told apart by what a student can see (its labels are a function of the state, not of
+    the episode so far). ``reverse_margin`` m: 0, or the law's reversing pass, which otherwise
+    runs until the brake stops it at contact, turns forwards where the car's box moved that
+    far straight back would touch a parked car or a wall (at most the lot's thinnest
+    obstacle, which the teacher checks against its env's lot). ``handover`` steps of dt: 0,
+    the law takes over anywhere in its funnel (``planner.law_*``); H > 0, beyond the
+    planner's own target (where it always does) only where the law itself, simulated H steps
+    on from there, touches nothing."""
+
+    reverse_margin: float = 0.0  # m
+    handover: int = 0  # steps of dt
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        require(math.isfinite(self.reverse_margin) and self.reverse_margin >= 0,
+                "TeacherConfig.reverse_margin", "finite, >= 0 (m)", self.reverse_margin)
+        require(0 <= self.handover <= HANDOVER_LIMIT, "TeacherConfig.handover",
+                f"an int in [0, {HANDOVER_LIMIT}] (steps of dt)", self.handover)

@@ -1,0 +1,3 @@
+from trainers.distill.cli import main
+
+main()

@@ -1,0 +1,69 @@
+"""The distiller's fit: minibatch regression of the student on the teacher's labels, over the
+whole aggregate (DAgger's refit) or, with ``dagger.replay``, over an iteration's new states
+and a bounded sample of the earlier ones (:func:`passes`)."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict
+
+from trainers.distill.config import DaggerConfig
+from trainers.distill.labels import STUDENT_INPUT
+from trainers.heads import BinnedGearHead, imitation_error
+from trainers.utils import NORMALISED
+
+
+def passes(total: int, new: int, epochs: int, replay: float, generator: torch.Generator
+           ) -> tuple[list[torch.Tensor], float]:
+    """The order of each of ``epochs`` passes over an aggregate of ``total`` states whose last
+    ``new`` an iteration has just labelled, and the weight of an earlier state relative to its
+    own. ``replay`` 0 (or no earlier state): every state, a fresh permutation per pass, each
+    weighing its own (the full refit, whose work grows with the aggregate). ``replay`` r > 0:
+    per pass the new states and a fresh uniform draw of ``min(earlier, round(r * new))`` earlier
+    ones (without replacement), shuffled together; those weigh ``earlier / drawn`` times their
+    own, so that each pass's loss is the whole aggregate's in expectation, and a pass's work
+    is bounded by ``(1 + r) * new`` states, whatever the iteration."""
+    earlier = total - new
+    if replay == 0 or earlier == 0:
+        return [torch.randperm(total, generator=generator) for _ in range(epochs)], 1.0
+    drawn = min(earlier, round(replay * new))
+    order = []
+    for _ in range(epochs):
+        picked = torch.cat((torch.randperm(earlier, generator=generator)[:drawn],
+                            torch.arange(earlier, total)))
+        order.append(picked[torch.randperm(picked.shape[0], generator=generator)])
+    return order, earlier / drawn
+
+
+def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor,
+        order: list[torch.Tensor], cfg: DaggerConfig, optim: torch.optim.Optimizer) -> float:
+    """Passes of minibatch regression of the student's deterministic action (tanh of its loc)
+    on the labels (N, 2) (:func:`imitation_error`, or the binned steering's own,
+    :meth:`trainers.heads.BinnedGearHead.imitation_error`; weighted per state by ``weights``
+    (N,)), one per index tensor of ``order`` (:func:`passes`), in minibatches of
+    ``cfg.batch_size``, the learning rate from ``cfg.lr`` (to 0 along a cosine over the fit
+    with ``cfg.lr_decay``); returns the last pass's mean loss."""
+    net = actor.module[0]
+    body = net.module[0]  # the policy's network before its scale head
+    for group in optim.param_groups:
+        group["lr"] = cfg.lr
+    batches = sum(-(-indices.shape[0] // cfg.batch_size) for indices in order)
+    schedule = (torch.optim.lr_scheduler.CosineAnnealingLR(optim, batches) if cfg.lr_decay
+                else None)
+    losses = []
+    for indices in order:
+        losses = []
+        for index in indices.split(cfg.batch_size):
+            td = norm(TensorDict({STUDENT_INPUT: inputs[index]}, [index.shape[0]]))
+            if isinstance(body, BinnedGearHead):
+                error = body.imitation_error(td[NORMALISED], labels[index])
+            else:
+                error = imitation_error(torch.tanh(net(td)["loc"]), labels[index])
+            loss = (weights[index] * error).mean()
+            optim.zero_grad()
+            loss.backward()
+            optim.step()
+            if schedule is not None:
+                schedule.step()
+            losses.append(loss.detach())
+    return torch.stack(losses).mean().item()
