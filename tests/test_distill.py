@@ -608,3 +608,15 @@ def test_resuming_refuses_another_teacher_or_no_run(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["--preset", "smoke", "--out", str(out), "--resume", *flags])
     assert "dagger_state.pt is not a distiller's state" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_replayed_run_fits_a_bounded_draw_and_writes_what_a_full_one_does(tmp_path, capsys):
+    out = tmp_path / "replayed"
+    main(["--preset", "smoke", "--out", str(out), "dagger.iterations=3", "dagger.replay=0.5",
+          "dagger.steps=8", "dagger.approach=0", "dagger.yardstick=2"])
+    rows = list(csv.DictReader((out / "dagger.csv").read_text().splitlines()))
+    assert [int(r["samples"]) for r in rows] == [6 * 8 * 8 * k for k in (1, 2, 3)]
+    assert all(np.isfinite(float(r["loss"])) for r in rows)
+    agent = load_agent(str(out / "checkpoint_final.pt"))
+    agent.make_env(2, 0.9, seed=0).rollout(3, agent.policy)

@@ -52,7 +52,7 @@ class StudentConfig:
 
     env: EnvConfig = field(default_factory=lambda: EnvConfig(num_envs=128))
     agent: AgentConfig = field(default_factory=_student_agent)
-    model: ModelConfig = field(default_factory=lambda: replace(PPO_PRESETS["fast"]().model))
+    model: ModelConfig = field(default_factory=lambda: PPO_PRESETS["fast"]().model)
 
 
 @dataclass
@@ -165,8 +165,8 @@ def _policy_alone() -> DistillConfig:
                               law_heading=0.55, gear_hold=0.75, car_margin=0.2),
         docking=replace(aids.docking, settle=0.05, retry=1.0), brake=aids.brake,
         reverse_margin=0.5, handover=50)
-    agent = replace(_student_agent(), aids=replace(_student_agent().aids,
-                                                   observe_position=True),
+    agent = _student_agent()
+    agent = replace(agent, aids=replace(agent.aids, observe_position=True),
                     clearance_features=True, gear_features=True, scan_memory=3,
                     slot_features=True)
     student = StudentConfig(agent=agent, model=replace(fast.model, hidden=[512, 512, 512],

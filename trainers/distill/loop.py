@@ -180,8 +180,8 @@ def distill(cfg: DistillConfig, out: Path, resume: bool = False) -> Path:
         epochs = cfg.dagger.epochs if iteration == 0 else cfg.dagger.dagger_epochs
         order, earlier = passes(x.shape[0], part[0].shape[0], epochs, cfg.dagger.replay,
                                 generator)
-        w = torch.where(torch.arange(x.shape[0]) < x.shape[0] - part[0].shape[0],
-                        w * earlier, w)
+        if earlier != 1.0:  # the drawn earlier states stand for all of them
+            w = torch.cat((w[:-part[0].shape[0]] * earlier, w[-part[0].shape[0]:]))
         loss = fit(student.actor, norm.to_observation_norm(), x, y, w, order, cfg.dagger,
                    student.optim)
         row = {"iteration": iteration, "frames": frames, "approach_states": approach,
