@@ -31,7 +31,7 @@ def _gym_episode(agent, occupancy: float, seed: int):
     state = None
     while not (terminated or truncated):
         action, state = agent.predict(obs, info, state=state)
-        recurrent = agent.config.agent.gear_features or agent.config.agent.scan_memory > 0
+        recurrent = bool({"gear", "scan_memory"} & set(agent.config.agent.features))
         assert (state is None) == (not recurrent)
         assert action.shape == (2,) and np.abs(action).max() <= 1
         obs, _, terminated, truncated, info = env.step(action)
@@ -108,7 +108,7 @@ def test_predict_carries_the_gear_state_row_by_row():
     rows' states, a row flagged by episode_start starts afresh, and a state of another shape
     is refused by name."""
     agent = load_agent(str(CHECKPOINTS[0]))
-    assert agent.config.agent.gear_features
+    assert "gear" in agent.config.agent.features
     env = agent.gym_env(seed=0)
     obs, info = env.reset()
     state = None

@@ -27,7 +27,7 @@ from torchpark.experts import PlannerConfig, TeacherConfig
 from torchpark.transforms.actions import PowerActionMap, gear_inverse, power_map_inverse
 from torchpark.transforms.features import GoalFrameFeatures
 from trainers.agent import load_agent
-from trainers.checkpoint import load_trained
+from trainers.checkpoint import load_checkpoint, load_trained
 from trainers.config import env_configs
 from trainers.distill.cli import main
 from trainers.distill.config import PRESETS, DaggerConfig, load_distill_config
@@ -141,7 +141,8 @@ def test_approach_states_carry_the_laws_forward_control():
     ("student.model.hidden=[]", "student.model.hidden"),
     ("student.model.hidden=[0]", "student.model.hidden"),
     ("student.model.hidden=[true]", "student.model.hidden"),
-    ("student.agent.slot_features=true", "student.agent.slot_features"),  # without position
+    ("student.agent.features=[slots]", "student.agent.features"),  # without position
+    ("student.agent.features=[goal,brake]", "student.agent.features"),  # no brake
     ("student.agent.gear_head=false", "student.agent.gear_head"),
     ("student.agent.aids.action_repeat=5", "student.agent.aids"),
     ("student.agent.aids.docking={}", "student.agent.aids"),
@@ -168,7 +169,9 @@ def test_the_help_lists_every_field_with_the_presets_value(capsys):
     out = capsys.readouterr().out
     for line in ("teacher.planner.headings = 96", "teacher.handover = 50",
                  "student.model.hidden = [512, 512, 512]", "dagger.iterations = 22",
-                 "student.agent.scan_memory = 3", "seed = 1"):
+                 "student.agent.memory_scans = 3", "seed = 1",
+                 "student.agent.features = ['goal', 'clearance', 'gear', 'scan_memory', "
+                 "'slots', 'position']"):
         assert f"  {line}\n" in out
 
 
@@ -178,8 +181,7 @@ def test_the_policy_alone_preset_is_the_committed_runs_config():
     before its config tree built from ``results/fast/checkpoint_final.pt``'s law and brake
     with the committed command's flags; DAgger's schedule those flags over its defaults."""
     cfg = PRESETS["policy_alone"]()
-    committed = torch.load(RESULTS / "policy_alone" / "checkpoint_best.pt", map_location="cpu",
-                           weights_only=True)
+    committed = load_checkpoint(RESULTS / "policy_alone" / "checkpoint_best.pt")
     assert dataclasses.asdict(cfg.student_run()) == committed["config"]
     fast, _ = load_trained(str(RESULTS / "fast" / "checkpoint_final.pt"))
     _, aids = env_configs(fast, training=False)
@@ -210,7 +212,8 @@ def test_a_run_writes_a_policy_alone_the_evaluator_reads(tmp_path, capsys):
     assert cfg.agent.gear_head
     made_of = checkpoint_agent(str(out / "checkpoint_final.pt")).made_of
     assert made_of["agent"] == "policy alone"
-    assert made_of["policy"].startswith("distilled (gear head) from the approach planner")
+    assert made_of["policy"].startswith("distilled (gear head, features goal) from the "
+                                         "approach planner")
     assert checkpoint["frames"] == 2 * 6 * 20 * 8
     agent = load_agent(str(out / "checkpoint_final.pt"))
     env = agent.make_env(4, 0.9, seed=0)
@@ -242,12 +245,13 @@ def test_a_student_with_the_clearance_features_and_position_reads_them_everywher
     out = tmp_path / "clearance"
     main(["--preset", "smoke", "--out", str(out), "dagger.iterations=1", "student.env.num_envs=4",
           "dagger.steps=5", "dagger.epochs=1", "dagger.yardstick=2", "dagger.approach=8",
-          "student.agent.clearance_features=true", "student.agent.aids.observe_position=true"])
+          "student.agent.features=[goal,clearance,position]",
+          "student.agent.aids.observe_position=true"])
     cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
-    assert cfg.agent.clearance_features and cfg.agent.goal_features
+    assert cfg.agent.features == ["goal", "clearance", "position"]
     assert cfg.agent.aids.observe_position
     assert checkpoint["trained_by"].startswith(
-        "distilled (gear head, clearance features, position) from")
+        "distilled (gear head, features goal/clearance/position) from")
     loc = checkpoint["obs_norm"]["_extra_state"]["loc.-|-.observation_policy"]
     assert loc.shape[-1] == 23 + 7 + 16 + 2
     agent = load_agent(str(out / "checkpoint_final.pt"))
@@ -261,13 +265,12 @@ def test_a_student_with_the_gear_features_reads_them_everywhere(tmp_path):
     out = tmp_path / "gear"
     main(["--preset", "smoke", "--out", str(out), "dagger.iterations=2", "student.env.num_envs=4",
           "dagger.steps=5", "dagger.epochs=1", "dagger.dagger_epochs=1", "dagger.yardstick=2",
-          "dagger.approach=8", "student.agent.clearance_features=true",
-          "student.agent.gear_features=true", "student.agent.aids.observe_position=true",
-          "teacher.planner.gear_hold=0.5"])
+          "dagger.approach=8", "student.agent.features=[goal,clearance,gear,position]",
+          "student.agent.aids.observe_position=true", "teacher.planner.gear_hold=0.5"])
     cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
-    assert cfg.agent.gear_features
+    assert "gear" in cfg.agent.features
     assert checkpoint["trained_by"].startswith(
-        "distilled (gear head, clearance features, gear features, position) from")
+        "distilled (gear head, features goal/clearance/gear/position) from")
     data = torch.load(out / "dagger_data" / "iteration_001.pt")
     assert data[0].shape[-1] == 23 + 7 + 16 + 2 + 2
     gear, travel = data[0][:, -4], data[0][:, -3]
@@ -286,13 +289,14 @@ def test_a_student_with_a_scan_memory_reads_it_everywhere_and_predicts_with_it(t
     out = tmp_path / "memory"
     main(["--preset", "smoke", "--out", str(out), "dagger.iterations=2", "student.env.num_envs=4",
           "dagger.steps=5", "dagger.epochs=1", "dagger.dagger_epochs=1", "dagger.yardstick=2",
-          "dagger.approach=8", "student.agent.clearance_features=true",
-          "student.agent.gear_features=true", "student.agent.aids.observe_position=true",
-          "student.agent.scan_memory=2"])
+          "dagger.approach=8",
+          "student.agent.features=[goal,clearance,gear,scan_memory,position]",
+          "student.agent.aids.observe_position=true", "student.agent.memory_scans=2"])
     cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
-    assert cfg.agent.scan_memory == 2
-    assert checkpoint["trained_by"].startswith("distilled (gear head, clearance features, "
-                                               "gear features, a memory of 2 scans, position)")
+    assert cfg.agent.memory_scans == 2
+    assert checkpoint["trained_by"].startswith(
+        "distilled (gear head, features goal/clearance/gear/scan_memory/position, a memory "
+        "of 2 scans)")
     data = torch.load(out / "dagger_data" / "iteration_001.pt")
     assert data[0].shape[-1] == 23 + 7 + 16 + 2 + 16 + 2
     path = str(out / "checkpoint_final.pt")
@@ -327,11 +331,11 @@ def test_a_student_with_the_slot_features_reads_them_everywhere(tmp_path):
     main(["--preset", "smoke", "--out", str(out), "dagger.iterations=2", "student.env.num_envs=4",
           "dagger.steps=5", "dagger.epochs=1", "dagger.dagger_epochs=1", "dagger.yardstick=2",
           "dagger.approach=8", "student.agent.aids.observe_position=true",
-          "student.agent.slot_features=true"])
+          "student.agent.features=[goal,slots,position]"])
     cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
-    assert cfg.agent.slot_features
-    assert checkpoint["trained_by"].startswith("distilled (gear head, slot features, "
-                                               "position) from")
+    assert "slots" in cfg.agent.features
+    assert checkpoint["trained_by"].startswith("distilled (gear head, features "
+                                               "goal/slots/position) from")
     for iteration in (0, 1):  # iteration 0 holds the final-approach states
         inputs = torch.load(out / "dagger_data" / f"iteration_{iteration:03d}.pt")[0]
         assert inputs.shape[-1] == 23 + 7 + 16 + 2
@@ -363,7 +367,8 @@ def test_a_student_with_binned_steering_is_fitted_and_driven_by_its_bins(tmp_pat
           "dagger.collision_horizon=3"])
     cfg, checkpoint = load_trained(str(out / "checkpoint_final.pt"))
     assert cfg.model.steer_bins == 5
-    assert checkpoint["trained_by"].startswith("distilled (gear head, binned steering) from")
+    assert checkpoint["trained_by"].startswith(
+        "distilled (gear head, features goal, binned steering) from")
     assert ("2 iteration(s) (DAgger after the first; the states up to 3 steps before its own "
             "collisions weighted 4)") in checkpoint["trained_by"]
     agent = load_agent(str(out / "checkpoint_final.pt"))
@@ -514,7 +519,8 @@ def test_a_resumed_run_gives_the_checkpoints_of_a_run_never_stopped(tmp_path,
                                                                     capsys):
     flags = ["student.env.num_envs=8", "dagger.steps=12", "dagger.epochs=2",
              "dagger.dagger_epochs=1", "dagger.yardstick=4", "dagger.approach=16",
-             "student.agent.aids.observe_position=true", "student.model.steer_bins=5"]
+             "student.agent.aids.observe_position=true",
+             "student.agent.features=[goal,position]", "student.model.steer_bins=5"]
     whole, parts = tmp_path / "whole", tmp_path / "parts"
     main(["--preset", "smoke", "--out", str(whole), "dagger.iterations=3", *flags])
     main(["--preset", "smoke", "--out", str(parts), "dagger.iterations=1", *flags])

@@ -23,7 +23,7 @@ from torch.utils._pytree import tree_flatten
 from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts
 from torchpark.config import ParkingConfig
 from torchpark.experts import TeacherConfig
-from trainers.config import AgentConfig, EnvConfig, ModelConfig
+from trainers.config import AgentConfig, EnvConfig, ModelConfig, upgraded_config
 from trainers.distill import distill
 from trainers.distill.config import (
     COARSE_PLANNER,
@@ -46,9 +46,9 @@ PINNED = DistillConfig(
         env=EnvConfig(num_envs=4, task=ParkingConfig(max_steps=50)),
         agent=AgentConfig(aids=AidsConfig(observe_position=True,
                                           near_goal_starts=NearGoalStarts(probability=0.5)),
-                          action_exponents=[3.0, 1.0], gear_head=True, goal_features=True,
-                          clearance_features=True, gear_features=True, scan_memory=2,
-                          slot_features=True),
+                          action_exponents=[3.0, 1.0], gear_head=True,
+                          features=["goal", "clearance", "gear", "scan_memory", "slots",
+                                    "position"], memory_scans=2),
         model=ModelConfig(hidden=[16, 16], steer_bins=5)),
     dagger=DaggerConfig(iterations=2, steps=12, epochs=2, dagger_epochs=1, yardstick=4,
                         approach=8, collision_weight=10.0, stall_weight=5.0, lr_decay=True),
@@ -88,7 +88,7 @@ def test_the_distiller_gives_the_labels_and_checkpoints_of_the_one_before_its_re
     assert reference["data"][0][2].max() == 10.0  # a collision was weighted
     for name in ("checkpoint_final.pt", "checkpoint_best.pt"):
         ours = torch.load(tmp_path / name, weights_only=True)
-        assert ours["config"] == reference[name]["config"]
+        assert ours["config"] == upgraded_config(reference[name]["config"])
         assert ours["frames"] == reference[name]["frames"]
         for key in ("actor", "obs_norm"):
             assert_same(ours[key], reference[name][key], exact, f"{name}'s {key}")

@@ -201,9 +201,9 @@ def test_the_compiled_update_takes_the_eager_updates_steps():
 def test_a_start_checkpoint_with_another_agent_or_a_resume_beside_it_is_refused(smoke_run,
                                                                                 tmp_path):
     _, final = smoke_run
-    other = load_config("smoke", ["agent.goal_features=true", f"logger.log_dir={tmp_path}"])
+    other = load_config("smoke", ["agent.features=[goal]", f"logger.log_dir={tmp_path}"])
     with pytest.raises(ValueError, match=r"trained with another agent config: "
-                                         r"agent\.goal_features=False in the checkpoint"):
+                                         r"agent\.features=\[\] in the checkpoint"):
         train(other, init=str(final))
     cfg = load_config("smoke", [f"logger.log_dir={tmp_path}"])
     with pytest.raises(ValueError, match="pass one of them"):
@@ -248,9 +248,13 @@ def test_unknown_preset_or_field_is_an_error():
         load_config("smoke", ["env.nope=1"])
     with pytest.raises(ValueError, match=r"frames_per_batch must be a multiple of env\.num_envs"):
         load_config("smoke", ["env.num_envs=7"])
-    with pytest.raises(ValueError, match=r"agent\.slot_features must be False without "
-                                         r"agent\.aids\.observe_position"):
-        load_config("smoke", ["agent.slot_features=true"])
+    with pytest.raises(ValueError, match=r"agent\.features must be without 'slots' unless "
+                                         r"agent\.aids\.observe_position is on"):
+        load_config("smoke", ["agent.features=[slots]"])
+    with pytest.raises(ValueError, match=r"agent\.features must be a list of distinct names "
+                                         r"among goal, clearance, gear, scan_memory, slots, "
+                                         r"position, brake, got \['goal', 'goal'\]"):
+        load_config("smoke", ["agent.features=[goal,goal]"])
 
 
 @pytest.mark.slow
@@ -438,12 +442,12 @@ def test_training_aids_train_end_to_end_and_evaluate(tmp_path):
     cfg = load_config("smoke", [
         f"logger.log_dir={tmp_path}", "agent.aids.action_repeat=2",
         "agent.action_exponents=[3.0,1.0]", "agent.aids.near_goal_starts.probability=0.5",
-        "agent.goal_features=true",
+        "agent.features=[goal,gear,brake]",
         "model.state_dependent_std=true", "collector.frames_per_batch=2048",
         "collector.total_frames=4096", "env.task.reward.success_threshold=1000.0",
         "agent.aids.brake.penalty=-1.0", "agent.aids.docking.lateral=1.0",
-        "agent.aids.brake.steer_clear=5", "agent.observe_brake=true",
-        "agent.gear_head=true", "agent.aids.brake.margin=0.2", "agent.gear_features=true",
+        "agent.aids.brake.steer_clear=5",
+        "agent.gear_head=true", "agent.aids.brake.margin=0.2",
     ])
     assert env_configs(cfg, True)[1].brake.margin == env_configs(cfg, False)[1].brake.margin \
         == 0.2
@@ -484,8 +488,8 @@ def test_training_aids_stay_out_of_the_evaluation_env():
 
 
 def test_observe_brake_appends_the_brake_flag_to_the_policy_input():
-    cfg = load_config("smoke", ["agent.aids.brake={}", "agent.goal_features=true",
-                                "agent.observe_brake=true", "env.num_envs=64"])
+    cfg = load_config("smoke", ["agent.aids.brake={}", "agent.features=[goal,brake]",
+                                "env.num_envs=64"])
     env = make_env(cfg)
     env.base_env.occupancy = 0.9
     td = env.reset()
@@ -517,7 +521,8 @@ def test_action_repeat_must_divide_the_batch():
     ("logger.exp_name=a/b", "logger.exp_name"),
     ("env.num_envs=true", "num_envs"), ("env.task.max_steps=1.5", "max_steps"),
     ("agent.gear_head=maybe", "gear_head"),
-    ("agent.observe_brake=true", "agent.observe_brake"),
+    ("agent.features=[brake]", "agent.features must be without 'brake' unless agent.aids.brake"),
+    ("agent.features=[lidar]", "agent.features must be a list of distinct names"),
     ("agent.aids.brake.steer_clear=1", "BrakeConfig.steer_clear"),
     ("agent.aids.brake.margin=2", "BrakeConfig.margin"),
     ("agent.aids.brake.margni=0.2", "Key 'margni' not in 'BrakeConfig'"),
@@ -527,13 +532,13 @@ def test_action_repeat_must_divide_the_batch():
     ("env.task.reward.collision_penalty=200", "env.task.reward.collision_penalty"),
     *([] if torch.cuda.is_available() else [("env.device=cuda", "env.device")]),
     ("env.device=meta", "env.device"),
-    ("agent.goal_features=2", "agent.goal_features must be true or false"),
+    ("agent.gear_head=2", "agent.gear_head must be true or false"),
     ("agent.aids.observe_position=2", "agent.aids.observe_position must be true or false"),
     ("env.reset_in_step=2", "env.reset_in_step must be true, false or null"),
     ("model.init_log_std=100", "model.init_log_std must be a number in [-20, 2]"),
     ("seed=4294967296", "seed must be an int in [0, 2**32)"),
-    ("agent.scan_memory=65", "agent.scan_memory must be an int in [0, 64]"),
-    ("agent.scan_memory=-1", "agent.scan_memory must be an int in [0, 64]"),
+    ("agent.memory_scans=65", "agent.memory_scans must be an int in [1, 64]"),
+    ("agent.memory_scans=0", "agent.memory_scans must be an int in [1, 64]"),
 ])
 def test_a_bad_training_field_is_one_line_naming_it(override, name, capsys):
     with pytest.raises(SystemExit) as refused:
@@ -760,7 +765,7 @@ def test_two_evaluations_into_one_directory_the_second_is_refused(smoke_run, tmp
 @pytest.mark.slow
 @pytest.mark.parametrize(("sections", "message"), [
     ({"model": {"hidden": [32, 32]}}, "its actor does not fit the network its config builds"),
-    ({"agent": {"goal_features": 2}}, "agent.goal_features must be true or false, got 2"),
+    ({"agent": {"gear_head": 2}}, "agent.gear_head must be true or false, got 2"),
     ({"logger": {"exp_name": "${oc.env:HOME}"}},
      "has an OmegaConf interpolation ('${...}') in config.logger.exp_name"),
 ])

@@ -20,6 +20,7 @@ from torchpark.gym_env import ENV_ID, ParkingGymEnv, ParkingVectorEnv, register
 from torchpark.transforms.actions import GearActionMap, PowerActionMap
 from torchpark.transforms.features import (
     ClearanceFeatures,
+    EpisodeFeature,
     GearTravelFeatures,
     GoalFrameFeatures,
     ScanMemory,
@@ -34,6 +35,7 @@ __all__ = [
     "BrakeConfig",
     "ClearanceFeatures",
     "DockingConfig",
+    "EpisodeFeature",
     "GearActionMap",
     "GearTravelFeatures",
     "GoalFrameFeatures",

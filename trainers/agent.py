@@ -34,14 +34,12 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import ProbabilisticActor
 
-from torchpark import ENV_ID, AidsConfig, GearTravelFeatures, ParkingConfig, ScanMemory
+from torchpark import ENV_ID, AidsConfig, EpisodeFeature, ParkingConfig
 from torchpark._compat import tree_map_only
-from torchpark.aids.step import BRAKED
 from torchpark.config import check_flag
-from torchpark.sim.observation import SPEED
-from torchpark.sim.vehicle import gear_travel
 from trainers.checkpoint import load_trained, load_weights
 from trainers.config import TrainConfig, check_device, env_configs
+from trainers.features import feature_reads
 from trainers.utils import build_models, make_eval_env
 
 
@@ -97,10 +95,11 @@ class TrainedAgent:
         ``deterministic=False`` samples from the policy's distribution.
 
         ``state`` is None for an agent whose input is the observation of the moment. One with
-        the gear features (``AgentConfig.gear_features``) or a scan memory
-        (``AgentConfig.scan_memory``) reads the episode so far, as a recurrent policy: pass
-        back the state the last call returned ((S,) or (B, S): the gear and its travel, m,
-        then the remembered scans, flattened), None at an episode's first observation, and,
+        a feature that reads the episode so far (``torchpark.EpisodeFeature``: ``"gear"``,
+        ``"scan_memory"`` in ``AgentConfig.features``) is a recurrent policy: pass back the
+        state the last call returned ((S,) or (B, S): each such feature's state, in the
+        input's order, e.g. the gear and its travel, m, then the remembered scans,
+        flattened), None at an episode's first observation, and,
         as SB3 does, ``episode_start`` (B,) bool for the rows whose observation is a new
         episode's first (every row when ``state`` is None)."""
         given = np.asarray(observation)
@@ -131,9 +130,9 @@ class TrainedAgent:
                                  f"({len(td)} x {width}), got shape {tuple(value.shape)}")
             td[key] = value.reshape(len(td), width).to(batch.device)
         transform = self._inputs.transform
-        gear, memory = self._recurrent
-        if gear is not None or memory is not None:
-            going_on = self._set_state(batch, state, episode_start)
+        recurrent = self._recurrent
+        if recurrent:
+            going_on = self._resume(batch, state, episode_start)
             td["_reset"] = ~going_on[:, None]  # the rows that go on keep the state set here
         mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
         with torch.no_grad(), set_exploration_type(mode):
@@ -141,26 +140,18 @@ class TrainedAgent:
             td = transform.inv(self.actor(transform._reset(td, td)))
         high = self._inputs.base_env.action_spec.space.high.reshape(-1, 2)[0]
         action = (td["action"] / high).clamp(-1.0, 1.0).cpu().numpy()
-        if gear is None and memory is None:
+        if not recurrent:
             return (action[0] if single else action), None
-        parts = []
-        if gear is not None:
-            parts.append(torch.stack((gear.gear, gear.travel), -1))
-        if memory is not None:  # the scans the next observation's features read
-            now = memory.scan(batch)[:, None]
-            parts.append(torch.cat((now, memory.history[:, :-1]), 1).flatten(1))
-        new_state = torch.cat(parts, -1).cpu().numpy()
+        new_state = torch.cat([t.episode_state(batch) for t in recurrent], -1).cpu().numpy()
         return (action[0], new_state[0]) if single else (action, new_state)
 
-    def _set_state(self, batch: torch.Tensor, state: np.ndarray | None,
-                   episode_start: np.ndarray | None) -> torch.Tensor:
-        """Sets the recurrent input transforms' state for this observation (B, D): a new
-        episode's rows start, the others go on from ``state`` (the gear by the observed
-        speed, the scan memory as it was). Returns the rows that go on, (B,) bool."""
-        gear, memory = self._recurrent
-        b = batch.shape[0]
-        width = (2 if gear is not None else 0) + (
-            memory.scans * (4 + memory.n_rays) if memory is not None else 0)
+    def _resume(self, batch: torch.Tensor, state: np.ndarray | None,
+                episode_start: np.ndarray | None) -> torch.Tensor:
+        """Sets the recurrent features' state for this observation (B, D): a new episode's
+        rows start, the others go on from ``state`` (each feature's part of it, in the
+        input's order). Returns the rows that go on, (B,) bool."""
+        widths = [t.state_width for t in self._recurrent]
+        b, width = batch.shape[0], sum(widths)
         going_on = torch.zeros(b, dtype=torch.bool, device=batch.device)
         before = torch.zeros(b, width, device=batch.device)
         if state is not None:
@@ -177,28 +168,19 @@ class TrainedAgent:
                     raise ValueError(f"episode_start must hold one flag per observation "
                                      f"({b}), got shape {tuple(start.shape)}")
                 going_on = ~start.reshape(b)
-        if gear is not None:
-            gear.gear, gear.travel = gear_travel(batch[:, SPEED], before[:, 0], before[:, 1],
-                                                 gear.step_time)
-            gear.start_rows(~going_on)
-            before = before[:, 2:]
-        if memory is not None:  # the rows that start are refilled by the transform's reset
-            memory.history = before.reshape(b, memory.scans, 4 + memory.n_rays)
+        for feature, part in zip(self._recurrent, before.split(widths, -1), strict=True):
+            feature.resume(batch, part, going_on)
         return going_on
 
     @cached_property
-    def _recurrent(self) -> tuple[GearTravelFeatures | None, ScanMemory | None]:
-        """The input's transforms that read the episode so far, where the agent has them:
-        the gear features, the scan memory."""
-        found = [next((t for t in self._inputs.transform if isinstance(t, kind)), None)
-                 for kind in (GearTravelFeatures, ScanMemory)]
-        return found[0], found[1]
+    def _recurrent(self) -> list[EpisodeFeature]:
+        """The input's features that read the episode so far (``EpisodeFeature``), in
+        the input's order."""
+        return [t for t in self._inputs.transform if isinstance(t, EpisodeFeature)]
 
     def _info_keys(self) -> tuple[str, ...]:
         """The env outputs besides the observation that the policy's input reads."""
-        aids = self.config.agent.aids
-        return (("position",) if aids.observe_position else ()) + (
-            (BRAKED,) if self.config.agent.observe_brake else ())
+        return feature_reads(self.config.agent)
 
     @cached_property
     def _inputs(self) -> TransformedEnv:

@@ -13,7 +13,7 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from torchpark.config import is_integer, is_number
-from trainers.config import TrainConfig, check_flags
+from trainers.config import TrainConfig, check_flags, upgraded_config
 
 # What every checkpoint holds (evaluation needs no more); a full one, written by the
 # trainer, can also be resumed from.
@@ -50,7 +50,8 @@ def load_checkpoint(path: str | Path, device: torch.device | str = "cpu",
     Raises ValueError naming the path when the file is missing, is not a torch file, holds
     anything but tensors and plain data (pickled code is never run), or lacks one of
     ``required``; with ``config`` among them, when it is no dict or holds an OmegaConf
-    interpolation.
+    interpolation (a config saved in older fields comes in today's,
+    :func:`trainers.config.upgraded_config`).
     """
     path = Path(path)
     if not path.is_file():
@@ -82,6 +83,10 @@ def load_checkpoint(path: str | Path, device: torch.device | str = "cpu",
         raise ValueError(f"checkpoint {str(path)!r} has an OmegaConf interpolation ('${{...}}') "
                          f"in config.{interpolated}: a saved config holds values, never "
                          f"something to resolve")
+    try:
+        checkpoint["config"] = upgraded_config(checkpoint["config"])
+    except ValueError as err:
+        raise ValueError(f"checkpoint {str(path)!r} has an invalid config: {err}") from None
     return checkpoint
 
 

@@ -18,9 +18,11 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts
+from torchpark.aids.step import BRAKED
 from torchpark.checks import check_device
-from torchpark.config import ParkingConfig, RewardConfig, check_seed, require
+from torchpark.config import ParkingConfig, RewardConfig, check_seed, is_integer, require
 from torchpark.curriculum import PAPER_LEVELS
+from trainers.features import FEATURES, POSITION
 
 
 @dataclass
@@ -62,28 +64,21 @@ class AgentConfig:
     # With action_exponents: the policy outputs a gear and a (speed, steer) pair per gear
     # (torchpark.GearActionMap, 5 dims); the gear's sign picks forwards or reverse.
     gear_head: bool = False
-    # Append the goal seen from the car (torchpark.GoalFrameFeatures) to the policy's input.
-    goal_features: bool = False
-    # Append the gap left along each LIDAR ray past the car's own box, on a log-like scale
-    # (torchpark.ClearanceFeatures) to the policy's input.
-    clearance_features: bool = False
-    # Append the gear the car last moved in and its travel in it since it changed, counted
-    # from the observed speed over the episode (torchpark.GearTravelFeatures): what a
-    # teacher's gear hold decides by.
-    gear_features: bool = False
-    # Append, per LIDAR ray, the nearest gap from the car's box to where a ray of this scan
-    # or of the scan_memory scans before it ended in that ray's sector (torchpark.ScanMemory),
-    # counted from the observations over the episode: the corners the 16 rays of one scan
-    # pass between. 0: none.
-    scan_memory: int = 0
-    # Append, per LIDAR ray, the gap from the car's box to the nearest slot but the goal's,
-    # as if the slots' lines were walls (torchpark.SlotGaps), from the car's position
-    # (agent.aids.observe_position) and the lot's map: the empty slots a teacher keeping off
-    # them steers by, which the LIDAR does not see.
-    slot_features: bool = False
-    # Append the env's braked flag (the brake stopped the last step) to the policy's input:
-    # a deterministic policy that pushes into a parked car sees that it was stopped.
-    observe_brake: bool = False
+    # The policy's extra inputs, appended to the paper's observation in this order, by name
+    # (trainers.features.FEATURES): "goal" (the goal seen from the car), "clearance" (the
+    # gap along each LIDAR ray past the car's box), "gear" (the gear last moved in and the
+    # travel in it, from the observed speed over the episode: what a teacher's gear hold
+    # decides by), "scan_memory" (per ray, the nearest gap of this scan and the
+    # memory_scans before it, in that ray's sector: the corners one scan's 16 rays pass
+    # between), "slots" (per ray, the gap to the nearest slot but the goal's: what a teacher
+    # keeping off empty slots steers by, which the LIDAR does not see), "position" (the rear
+    # axle's (x, y)) and "brake" (the brake stopped the last step: a deterministic policy
+    # that pushes into a parked car sees it was stopped). "slots" and "position" read the
+    # env's position (agent.aids.observe_position), "brake" its brake (agent.aids.brake).
+    # E.g. agent.features=[goal,clearance].
+    features: list[str] = field(default_factory=list)
+    # The past scans the "scan_memory" feature remembers.
+    memory_scans: int = 3
 
 
 @dataclass
@@ -196,7 +191,7 @@ def _fast() -> TrainConfig:
             aids=AidsConfig(action_repeat=5, brake=BrakeConfig(steer_clear=5),
                             docking=DockingConfig(),
                             near_goal_starts=NearGoalStarts(probability=0.5)),
-            action_exponents=[1.0, 1.0], goal_features=True, observe_brake=True),
+            action_exponents=[1.0, 1.0], features=["goal", "brake"]),
         collector=CollectorConfig(frames_per_batch=1024 * 32 * 5, compile_policy=True),
         loss=LossConfig(gamma=0.995, mini_batch_size=1024, ppo_epochs=8, reward_scale=0.1),
         model=ModelConfig(hidden=[256, 256], init_log_std=-1.0, state_dependent_std=True),
@@ -297,6 +292,40 @@ def by_dot_name(message: str, schema: type, given: list[str]) -> str:
     if not dot or not space or len(places) != 1:
         return message
     return f"{places[0]}.{field} ({owner}.{field}) {tail}"
+
+
+# The agent's features as they were saved before AgentConfig.features named them
+# (2026-12-06): a flag (or scan_memory's count) per feature, appended in this order.
+_FLAGGED_FEATURES = (("goal_features", "goal"), ("clearance_features", "clearance"),
+                     ("gear_features", "gear"), ("scan_memory", "scan_memory"),
+                     ("slot_features", "slots"), ("observe_position", "position"),
+                     ("observe_brake", "brake"))
+
+
+def upgraded_config(saved: dict) -> dict:
+    """A saved run config (a checkpoint's) in today's fields: one saved with the agent's
+    features as flags gets them as ``agent.features``, the same input in the same order
+    (``aids.observe_position`` then also appended the position); ValueError naming a flag
+    that holds anything else. Others come back as they are."""
+    agent = saved.get("agent")
+    if not isinstance(agent, dict) or "goal_features" not in agent:
+        return saved
+    agent = dict(agent)
+    aids = agent.get("aids") if isinstance(agent.get("aids"), dict) else {}
+    flags = {**agent, "observe_position": aids.get("observe_position", False)}
+    for key, _ in _FLAGGED_FEATURES:
+        value = flags.get(key, 0 if key == "scan_memory" else False)
+        require(is_integer(value) and value >= 0 if key == "scan_memory"
+                else isinstance(value, bool), f"agent.{key}",
+                "an int >= 0" if key == "scan_memory" else "true or false", value)
+    features = [name for key, name in _FLAGGED_FEATURES if flags.get(key)]
+    scans = agent.get("scan_memory")
+    for key, _ in _FLAGGED_FEATURES:
+        agent.pop(key, None)
+    agent["features"] = features
+    if "scan_memory" in features:
+        agent["memory_scans"] = scans
+    return {**saved, "agent": agent}
 
 
 def check_flags(values: dict, schema: type = TrainConfig, prefix: str = "") -> None:
@@ -436,10 +465,6 @@ def check_agent(cfg: TrainConfig, prefix: str = "") -> None:
     checked by their dataclasses as they are built); ``prefix``: the dot name of the run's
     config in a larger one (a distiller's ``student.``)."""
     agent = cfg.agent
-    require(not agent.observe_brake or agent.aids.brake is not None,
-            f"{prefix}agent.observe_brake",
-            f"False without {prefix}agent.aids.brake (there is no brake flag to observe)",
-            agent.observe_brake)
     require(not agent.gear_head or agent.action_exponents is not None,
             f"{prefix}agent.gear_head", f"False without {prefix}agent.action_exponents (the "
             f"gear picks a pair of [-1, 1] actions for the power map)", agent.gear_head)
@@ -448,12 +473,20 @@ def check_agent(cfg: TrainConfig, prefix: str = "") -> None:
                                   and all(1.0 <= e <= 8.0 for e in exponents)),
             f"{prefix}agent.action_exponents", "null or two numbers in [1, 8] (speed, steer)",
             exponents)
-    require(0 <= agent.scan_memory <= 64, f"{prefix}agent.scan_memory", "an int in [0, 64] "
-            "(past scans remembered)", agent.scan_memory)
-    require(not agent.slot_features or agent.aids.observe_position,
-            f"{prefix}agent.slot_features", f"False without {prefix}agent.aids."
-            f"observe_position (the slots are found from the car's position)",
-            agent.slot_features)
+    names = ", ".join(FEATURES)
+    require(all(name in FEATURES for name in agent.features)
+            and len(set(agent.features)) == len(agent.features),
+            f"{prefix}agent.features", f"a list of distinct names among {names}",
+            agent.features)
+    outputs = {POSITION: ("aids.observe_position", agent.aids.observe_position),
+               BRAKED: ("aids.brake", agent.aids.brake is not None)}
+    for name in agent.features:
+        for key in FEATURES[name].reads:
+            aid, on = outputs[key]
+            require(on, f"{prefix}agent.features", f"without {name!r} unless "
+                    f"{prefix}agent.{aid} is on (it reads the env's {key!r})", agent.features)
+    require(1 <= agent.memory_scans <= 64, f"{prefix}agent.memory_scans",
+            "an int in [1, 64] (past scans the scan memory holds)", agent.memory_scans)
     bins = cfg.model.steer_bins
     require(bins == 0 or (bins >= 3 and bins % 2 == 1 and agent.gear_head),
             f"{prefix}model.steer_bins", f"0, or an odd int >= 3 with {prefix}agent.gear_head "

@@ -16,9 +16,7 @@ from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
 from torchrl.data import Bounded
 from torchrl.envs import (
-    CatTensors,
     Compose,
-    DTypeCastTransform,
     InitTracker,
     RewardSum,
     StepCounter,
@@ -27,21 +25,11 @@ from torchrl.envs import (
 )
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
-from torchpark import (
-    ClearanceFeatures,
-    GearActionMap,
-    GearTravelFeatures,
-    GoalFrameFeatures,
-    OccupancyCurriculum,
-    ParkingEnv,
-    PowerActionMap,
-    ScanMemory,
-    SlotGaps,
-)
-from torchpark.aids.step import BRAKED
+from torchpark import GearActionMap, OccupancyCurriculum, ParkingEnv, PowerActionMap
 from torchpark.resets import MAX_BLOCKS_AHEAD
 from torchpark.transforms.sync_free import SyncFreeEnv, SyncFreeRewardScaling, SyncFreeVecNorm
 from trainers.config import ModelConfig, TrainConfig, env_configs
+from trainers.features import feature_transforms
 from trainers.heads import BinnedGearHead
 
 NORMALISED = "observation_norm"  # the normalised observation the networks read
@@ -194,8 +182,8 @@ NORM_DECAY = 0.9999
 def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[Transform]:
     """The transforms between the env and the networks: the optional action maps (the power
     map onto the env's own action bounds, the gear head above it), then from the raw
-    observation (with the optional goal, clearance and gear features, position and brake
-    flag) to the networks' input ``NORMALISED`` (last).
+    observation with the agent's features (``AgentConfig.features``, in their order:
+    :data:`trainers.features.FEATURES`) to the networks' input ``NORMALISED`` (last).
 
     Normalised into its own key: the networks read it, while the raw observation stays in the
     data for evaluation and analysis (final position and heading errors). reduce_batch_dims:
@@ -206,7 +194,6 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
     statistics (``trainers.distributed.merge_normalisers``, after each batch) is what one
     normaliser would hold after the run's global batch.
     """
-    source = ["observation"]
     transforms: list[Transform] = []
     agent = cfg.agent
     if agent.action_exponents is not None:
@@ -214,35 +201,10 @@ def policy_input(cfg: TrainConfig, base: ParkingEnv, replicas: int = 1) -> list[
         transforms.append(PowerActionMap(high.cpu(), agent.action_exponents))
         if agent.gear_head:
             transforms.append(GearActionMap())
-    if agent.goal_features:
-        transforms.append(GoalFrameFeatures("observation", "observation_policy"))
-        source = ["observation_policy"]
-    if agent.clearance_features:
-        transforms.append(ClearanceFeatures(base.config, source[0], "observation_policy"))
-        source = ["observation_policy"]
-    if agent.gear_features:
-        transforms.append(GearTravelFeatures(base.config.vehicle.dt * base.action_repeat,
-                                             source[0], "observation_policy"))
-        source = ["observation_policy"]
-    if agent.scan_memory:
-        transforms.append(ScanMemory(base.config, agent.scan_memory, source[0],
-                                     "observation_policy"))
-        source = ["observation_policy"]
-    if agent.slot_features:
-        transforms.append(SlotGaps(base.config, source[0], "position", "observation_policy"))
-        source = ["observation_policy"]
-    if agent.aids.observe_position:
-        transforms.append(CatTensors([*source, "position"], "observation_policy",
-                                     del_keys=False, sort=False))
-        source = ["observation_policy"]
-    if agent.observe_brake:
-        transforms += [DTypeCastTransform(torch.bool, torch.float32, in_keys=[BRAKED],
-                                          out_keys=["braked_input"]),
-                       CatTensors([*source, "braked_input"], "observation_policy",
-                                  del_keys=False, sort=False)]
-        source = ["observation_policy"]
-    return [*transforms, SyncFreeVecNorm(in_keys=source, out_keys=[NORMALISED],
-                                   decay=NORM_DECAY ** replicas, reduce_batch_dims=True)]
+    features, source = feature_transforms(base, agent)
+    return [*transforms, *features,
+            SyncFreeVecNorm(in_keys=[source], out_keys=[NORMALISED],
+                            decay=NORM_DECAY ** replicas, reduce_batch_dims=True)]
 
 
 def build_models(cfg: TrainConfig) -> tuple[ProbabilisticActor, ValueOperator]:

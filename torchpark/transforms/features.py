@@ -17,6 +17,7 @@ on the same log-like scale, where 5 cm and 50 cm are a unit apart.
 from __future__ import annotations
 
 import math
+from typing import Protocol, runtime_checkable
 
 import torch
 from tensordict import TensorDictBase
@@ -30,6 +31,27 @@ from torchpark.sim.layout import build_layout
 from torchpark.sim.lidar import lidar_scan, line_rotation, ray_angles
 from torchpark.sim.observation import NAV_DIM, SPEED
 from torchpark.sim.vehicle import gear_travel
+
+
+@runtime_checkable
+class EpisodeFeature(Protocol):
+    """A feature that reads the episode so far (a state per env): a recurrent policy's
+    state, which an agent acting outside the env (``TrainedAgent.predict``) hands back and
+    takes again, one (B, ``state_width``) float tensor per feature."""
+
+    state_width: int
+
+    def episode_state(self, source: Tensor) -> Tensor:
+        """(B, state_width): the state the next observation's features read, after a
+        reset (or a :meth:`resume` and a reset) wrote the features of ``source`` (B, D)."""
+        ...
+
+    def resume(self, source: Tensor, state: Tensor, going_on: Tensor) -> None:
+        """Sets the state before ``source`` (B, D) is observed: the rows ``going_on`` (B,)
+        bool go on from ``state`` (B, state_width), the others start an episode. A reset
+        with ``"_reset"`` = ~going_on then writes every row's features."""
+        ...
+
 
 GOAL_FEATURES = 7  # ex, ey, cos and sin of the heading error, three asinh scales
 
@@ -169,7 +191,8 @@ class GearTravelFeatures(Transform):
     Stateful per env (gear and travel, (N,)): ``_reset`` starts the rows it resets (all,
     or those of the ``"_reset"`` mask), each step adds the step's motion. Called on a batch
     of states outside an env (``transform(td)``), it has no history: each row's gear is its
-    speed's sign and its travel ``cap``.
+    speed's sign and its travel ``cap``. An :class:`EpisodeFeature`: its state (B, 2) is
+    the gear and the travel, m.
 
     Args:
         step_time: the time one action drives, s (the env's dt times its action repeat).
@@ -188,6 +211,17 @@ class GearTravelFeatures(Transform):
         self.cap = cap
         self.gear: Tensor | None = None
         self.travel: Tensor | None = None
+        self.state_width = GEAR_FEATURES
+
+    def episode_state(self, source: Tensor) -> Tensor:
+        if self.gear is None or self.travel is None:
+            raise RuntimeError("GearTravelFeatures: state before reset (reset the env first)")
+        return torch.stack((self.gear, self.travel), -1)
+
+    def resume(self, source: Tensor, state: Tensor, going_on: Tensor) -> None:
+        self.gear, self.travel = gear_travel(source[..., SPEED], state[..., 0], state[..., 1],
+                                             self.step_time)
+        self.start_rows(~going_on)
 
     def _features(self, source: Tensor, gear: Tensor, travel: Tensor) -> Tensor:
         features = torch.stack([gear, travel.clamp(max=self.cap) / self.cap], dim=-1)
@@ -284,7 +318,8 @@ class ScanMemory(Transform):
     ``_reset`` starts the rows it resets (all, or those of the ``"_reset"`` mask) with the
     first scan in every place; each step's features read the scans before it, then push its
     own. Called on a batch of states outside an env (``transform(td)``), it has no history:
-    each row's scans are its own.
+    each row's scans are its own. An :class:`EpisodeFeature`: its state is the scans the next
+    observation's features read, flattened (B, scans * (4 + n_rays)).
 
     Args:
         config: the env's config (its vehicle's box, its LIDAR's rays and range).
@@ -311,6 +346,17 @@ class ScanMemory(Transform):
         self.register_buffer("ray_cos", torch.cos(angles).to(torch.float32))
         self.register_buffer("ray_sin", torch.sin(angles).to(torch.float32))
         self.history: Tensor | None = None
+        self.state_width = scans * (4 + self.n_rays)
+
+    def episode_state(self, source: Tensor) -> Tensor:
+        if self.history is None:
+            raise RuntimeError("ScanMemory: state before reset (reset the env first)")
+        now = self.scan(source)[..., None, :]
+        return torch.cat((now, self.history[..., :-1, :]), -2).flatten(-2)
+
+    def resume(self, source: Tensor, state: Tensor, going_on: Tensor) -> None:
+        # the rows that start are refilled by the reset that follows
+        self.history = state.reshape(*state.shape[:-1], self.scans, 4 + self.n_rays)
 
     def scan(self, source: Tensor) -> Tensor:
         """[..., D] input starting with the paper's observation -> [..., 4 + n_rays]: the

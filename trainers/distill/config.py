@@ -37,7 +37,7 @@ from trainers.config import (
 
 def _student_agent() -> AgentConfig:
     return AgentConfig(aids=AidsConfig(near_goal_starts=NearGoalStarts(probability=0.5)),
-                       action_exponents=[3.0, 1.0], gear_head=True, goal_features=True)
+                       action_exponents=[3.0, 1.0], gear_head=True, features=["goal"])
 
 
 @dataclass
@@ -145,8 +145,6 @@ def check(cfg: DistillConfig) -> None:
     require(aids.action_repeat == 1 and aids.brake is None and aids.docking is None,
             "student.agent.aids", "no action_repeat, brake or docking (a policy alone: one "
             "action per step of dt, as the teacher labels)", aids)
-    require(not agent.observe_brake, "student.agent.observe_brake", "false (no brake acts "
-            "around the student)", agent.observe_brake)
 
 
 def _policy_alone() -> DistillConfig:
@@ -167,8 +165,8 @@ def _policy_alone() -> DistillConfig:
         reverse_margin=0.5, handover=50)
     agent = _student_agent()
     agent = replace(agent, aids=replace(agent.aids, observe_position=True),
-                    clearance_features=True, gear_features=True, scan_memory=3,
-                    slot_features=True)
+                    features=["goal", "clearance", "gear", "scan_memory", "slots", "position"],
+                    memory_scans=3)
     student = StudentConfig(agent=agent, model=replace(fast.model, hidden=[512, 512, 512],
                                                        steer_bins=9))
     dagger = DaggerConfig(iterations=22, dagger_epochs=8, approach_weight=10.0,

@@ -108,14 +108,11 @@ def teacher_of(config: TeacherConfig, env: TransformedEnv) -> Teacher:
 def trained_by(cfg: DistillConfig, iterations: int, frames: int, approach: int) -> str:
     """The checkpoint's account of how the student was made."""
     agent, t, d = cfg.student.agent, cfg.teacher, cfg.dagger
-    parts = [name for name, on in (("gear head", True),
-                                   ("clearance features", agent.clearance_features),
-                                   ("gear features", agent.gear_features),
-                                   (f"a memory of {agent.scan_memory} scans",
-                                    agent.scan_memory > 0),
-                                   ("slot features", agent.slot_features),
-                                   ("binned steering", cfg.student.model.steer_bins > 0),
-                                   ("position", agent.aids.observe_position)) if on]
+    parts = ["gear head", f"features {'/'.join(agent.features) or 'none'}"]
+    if "scan_memory" in agent.features:
+        parts.append(f"a memory of {agent.memory_scans} scans")
+    if cfg.student.model.steer_bins > 0:
+        parts.append("binned steering")
     source = "the approach planner with its docking law and brake"
     if t.docking.settle:
         source += f" (its law creeping to the goal within {t.docking.settle:g} m"
