@@ -214,11 +214,14 @@ class GearTravelFeatures(Transform):
         self.state_width = GEAR_FEATURES
 
     def episode_state(self, source: Tensor) -> Tensor:
+        """(B, 2): the gear and its travel, m, that the next observation's step adds to."""
         if self.gear is None or self.travel is None:
             raise RuntimeError("GearTravelFeatures: state before reset (reset the env first)")
         return torch.stack((self.gear, self.travel), -1)
 
     def resume(self, source: Tensor, state: Tensor, going_on: Tensor) -> None:
+        """The gear and travel (B, 2) of ``state`` moved on by the speed of ``source``
+        (B, D) where ``going_on`` (B,) bool, a start elsewhere."""
         self.gear, self.travel = gear_travel(source[..., SPEED], state[..., 0], state[..., 1],
                                              self.step_time)
         self.start_rows(~going_on)
@@ -349,13 +352,16 @@ class ScanMemory(Transform):
         self.state_width = scans * (4 + self.n_rays)
 
     def episode_state(self, source: Tensor) -> Tensor:
+        """(B, scans * (4 + n_rays)): the scan of ``source`` (B, D) and the ones before it,
+        newest first, flattened: what the next observation's features read."""
         if self.history is None:
             raise RuntimeError("ScanMemory: state before reset (reset the env first)")
         now = self.scan(source)[..., None, :]
         return torch.cat((now, self.history[..., :-1, :]), -2).flatten(-2)
 
     def resume(self, source: Tensor, state: Tensor, going_on: Tensor) -> None:
-        # the rows that start are refilled by the reset that follows
+        """The remembered scans of ``state`` (B, scans * (4 + n_rays)); the rows not
+        ``going_on`` (B,) bool are refilled by the reset that follows."""
         self.history = state.reshape(*state.shape[:-1], self.scans, 4 + self.n_rays)
 
     def scan(self, source: Tensor) -> Tensor:
