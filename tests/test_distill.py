@@ -462,33 +462,39 @@ def test_the_students_layers_are_its_model_sections():
 
 
 def test_the_full_refit_passes_over_every_state_in_a_fresh_order():
-    order, earlier = passes(10, 4, 3, 0.0, torch.Generator().manual_seed(0))
-    assert earlier == 1.0 and len(order) == 3
+    order, scale = passes(10, 4, 3, 0.0, torch.Generator().manual_seed(0), kept=(2, 5))
+    assert torch.equal(scale, torch.ones(10)) and len(order) == 3
     assert all(torch.equal(o.sort().values, torch.arange(10)) for o in order)
     assert not torch.equal(order[0], order[1])
 
 
-@pytest.mark.parametrize(("total", "new", "replay", "drawn"),
-                         [(1000, 100, 1.0, 100), (1000, 100, 0.5, 50), (150, 100, 2.0, 50)])
-def test_a_replayed_pass_holds_the_new_states_and_a_bounded_weighted_draw_of_the_rest(
-        total, new, replay, drawn):
-    order, earlier = passes(total, new, 4, replay, torch.Generator().manual_seed(0))
+@pytest.mark.parametrize(("total", "new", "replay", "kept", "drawn"),
+                         [(1000, 100, 1.0, (0, 0), 100), (1000, 100, 0.5, (0, 0), 50),
+                          (150, 100, 2.0, (0, 0), 50), (1000, 100, 1.0, (300, 500), 100),
+                          (250, 100, 2.0, (100, 150), 100)])
+def test_a_replayed_pass_holds_the_new_and_kept_states_and_a_weighted_draw_of_the_rest(
+        total, new, replay, kept, drawn):
+    order, scale = passes(total, new, 4, replay, torch.Generator().manual_seed(0), kept)
     earlier_count = total - new
-    assert earlier == earlier_count / drawn
+    held = torch.arange(*kept)
+    is_other = torch.ones(total, dtype=torch.bool)
+    is_other[held], is_other[earlier_count:] = False, False
+    others = int(is_other.sum())
+    assert torch.equal(scale, torch.where(is_other, others / drawn, 1.0))
     for o in order:
-        assert o.shape[0] == new + drawn  # a pass's work: bounded, whatever the aggregate
-        assert torch.equal(o[o >= earlier_count].sort().values,
-                           torch.arange(earlier_count, total))  # every new state, once
-        old = o[o < earlier_count]
+        # a pass's work: bounded, whatever the aggregate
+        assert o.shape[0] == new + held.shape[0] + drawn
+        kept_or_new = o[~is_other[o]].sort().values  # every new and kept state, once
+        assert torch.equal(kept_or_new, torch.cat((held, torch.arange(earlier_count, total))))
+        old = o[is_other[o]]
         assert old.unique().shape[0] == drawn  # drawn without replacement
         # the weights stand for the whole aggregate: a pass's total weight is its size
-        weight = torch.where(o < earlier_count, earlier, 1.0)
-        assert weight.sum().item() == pytest.approx(total)
-    if drawn < earlier_count:  # a fresh draw each pass (else each draws all of them)
-        assert not torch.equal(order[0][order[0] < earlier_count].sort().values,
-                               order[1][order[1] < earlier_count].sort().values)
+        assert scale[o].sum().item() == pytest.approx(total)
+    if drawn < others:  # a fresh draw each pass (else each draws all of them)
+        assert not torch.equal(order[0][is_other[order[0]]].sort().values,
+                               order[1][is_other[order[1]]].sort().values)
     # the first iteration, or no replay: the full refit
-    assert passes(total, total, 2, replay, torch.Generator())[1] == 1.0
+    assert torch.equal(passes(total, total, 2, replay, torch.Generator())[1], torch.ones(total))
 
 
 @pytest.mark.slow

@@ -70,8 +70,9 @@ class DaggerConfig:
     ``epochs`` / ``dagger_epochs`` passes over all the data after the first / each later
     iteration, minibatches of ``batch_size``, Adam at ``lr`` (falling to 0 along a cosine
     over each fit with ``lr_decay``); ``replay``: 0, each pass over the whole aggregate (its
-    work grows with the iterations), or r > 0, over the iteration's new states and a fresh
-    uniform draw of r times as many earlier ones, weighted to stand for all of them
+    work grows with the iterations), or r > 0, over the iteration's new states, the
+    final-approach states and a fresh uniform draw of r times the new ones among the other
+    earlier states, weighted to stand for all of them
     (:func:`trainers.distill.fit.passes`: a pass's work bounded, the run's linear in the
     iterations). ``yardstick``: episodes per check after each iteration."""
 

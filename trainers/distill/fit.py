@@ -13,26 +13,34 @@ from trainers.heads import BinnedGearHead, imitation_error
 from trainers.utils import NORMALISED
 
 
-def passes(total: int, new: int, epochs: int, replay: float, generator: torch.Generator
-           ) -> tuple[list[torch.Tensor], float]:
+def passes(total: int, new: int, epochs: int, replay: float, generator: torch.Generator,
+           kept: tuple[int, int] = (0, 0)) -> tuple[list[torch.Tensor], torch.Tensor]:
     """The order of each of ``epochs`` passes over an aggregate of ``total`` states whose last
-    ``new`` an iteration has just labelled, and the weight of an earlier state relative to its
-    own. ``replay`` 0 (or no earlier state): every state, a fresh permutation per pass, each
-    weighing its own (the full refit, whose work grows with the aggregate). ``replay`` r > 0:
-    per pass the new states and a fresh uniform draw of ``min(earlier, round(r * new))`` earlier
-    ones (without replacement), shuffled together; those weigh ``earlier / drawn`` times their
-    own, so that each pass's loss is the whole aggregate's in expectation, and a pass's work
-    is bounded by ``(1 + r) * new`` states, whatever the iteration."""
+    ``new`` an iteration has just labelled, and each state's weight relative to its own
+    (``total``,). ``replay`` 0 (or no earlier state): every state, a fresh permutation per
+    pass, each weighing its own (the full refit, whose work grows with the aggregate).
+    ``replay`` r > 0: per pass the new states, the earlier ones in ``kept`` (start, stop: the
+    final-approach states, a fixed set the fit holds in every pass) and a fresh uniform draw
+    of ``min(others, round(r * new))`` of the other earlier ones (without replacement),
+    shuffled together; those weigh ``others / drawn`` times their own, so that each pass's
+    loss is the whole aggregate's in expectation, and a pass's work is bounded by
+    ``(1 + r) * new`` states and the kept ones, whatever the iteration."""
     earlier = total - new
+    scale = torch.ones(total)
     if replay == 0 or earlier == 0:
-        return [torch.randperm(total, generator=generator) for _ in range(epochs)], 1.0
-    drawn = min(earlier, round(replay * new))
+        return [torch.randperm(total, generator=generator) for _ in range(epochs)], scale
+    start, stop = kept
+    held = torch.arange(start, stop)
+    others = torch.cat((torch.arange(start), torch.arange(stop, earlier)))
+    drawn = min(others.shape[0], round(replay * new))
+    if drawn:
+        scale[others] = others.shape[0] / drawn
     order = []
     for _ in range(epochs):
-        picked = torch.cat((torch.randperm(earlier, generator=generator)[:drawn],
-                            torch.arange(earlier, total)))
+        picked = torch.cat((others[torch.randperm(others.shape[0], generator=generator)[:drawn]],
+                            held, torch.arange(earlier, total)))
         order.append(picked[torch.randperm(picked.shape[0], generator=generator)])
-    return order, earlier / drawn
+    return order, scale
 
 
 def fit(actor, norm, inputs: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor,

@@ -175,10 +175,10 @@ def distill(cfg: DistillConfig, out: Path, resume: bool = False) -> Path:
         aggregate.add(part)
         x, y, w = aggregate.all()
         epochs = cfg.dagger.epochs if iteration == 0 else cfg.dagger.dagger_epochs
-        order, earlier = passes(x.shape[0], part[0].shape[0], epochs, cfg.dagger.replay,
-                                generator)
-        if earlier != 1.0:  # the drawn earlier states stand for all of them
-            w = torch.cat((w[:-part[0].shape[0]] * earlier, w[-part[0].shape[0]:]))
+        first_rows = aggregate.parts[0][0].shape[0]  # its final-approach states last
+        order, scale = passes(x.shape[0], part[0].shape[0], epochs, cfg.dagger.replay,
+                              generator, kept=(first_rows - approach, first_rows))
+        w = w * scale.to(w.device)  # the drawn earlier states stand for all of them
         loss = fit(student.actor, norm.to_observation_norm(), x, y, w, order, cfg.dagger,
                    student.optim)
         row = {"iteration": iteration, "frames": frames, "approach_states": approach,
