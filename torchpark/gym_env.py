@@ -36,7 +36,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from tensordict import TensorDict, TensorDictBase
 
 from torchpark.aids.config import AidsConfig
-from torchpark.aids.step import BRAKED, DOCKING_ENGAGED, INTERVENTIONS
+from torchpark.aids.step import BRAKED, DOCKING_ENGAGED, INTERVENTIONS, POSITION
 from torchpark.config import ParkingConfig, check_flag, is_integer
 from torchpark.env import ParkingEnv
 from torchpark.sim.observation import NAV_DIM
@@ -50,7 +50,7 @@ VECTOR_RENDER_MODES = ["rgb_array"]
 INFO_KEYS = ("success", "collision", "occupancy")
 # What the aids emit, in the info when they are on: the brake's flag and count, the docking
 # law's flag, the rear axle's (x, y) (AidsConfig.observe_position).
-AID_INFO_KEYS = (BRAKED, INTERVENTIONS, DOCKING_ENGAGED, "position")
+AID_INFO_KEYS = (BRAKED, INTERVENTIONS, DOCKING_ENGAGED, POSITION)
 
 
 def _make_batched(num_envs: int, occupancy: float | None, device: torch.device | str,
@@ -174,7 +174,7 @@ def _numpy_info(td: TensorDictBase) -> dict[str, np.ndarray]:
     when they are on (AID_INFO_KEYS: (N,) or (N, 2) for the position)."""
     info = {key: td[key][:, 0].cpu().numpy() for key in INFO_KEYS}
     aided = {key: td[key] for key in AID_INFO_KEYS if key in td.keys()}
-    return {**info, **{key: (t[:, 0] if key != "position" else t).cpu().numpy()
+    return {**info, **{key: (t[:, 0] if key != POSITION else t).cpu().numpy()
                        for key, t in aided.items()}}
 
 

@@ -11,7 +11,7 @@ import torch
 from torch import Tensor
 
 from torchpark._compat import tree_flatten
-from torchpark.aids.step import AidedState, AidState
+from torchpark.aids.step import POSITION, AidedState, AidState
 from torchpark.sim.state import ParkingState
 
 
@@ -46,7 +46,7 @@ def output_fields(state: AidedState, observation: Tensor, cost: Tensor,
               "occupancy": state.sim.occupancy[:, None],
               **{key: getattr(state.aids, key)[:, None] for key in aid_keys}}
     if position:
-        fields["position"] = state.sim.pose[:, :2]
+        fields[POSITION] = state.sim.pose[:, :2]
     return fields
 
 

@@ -18,11 +18,11 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from torchpark.aids.config import AidsConfig, BrakeConfig, DockingConfig, NearGoalStarts
-from torchpark.aids.step import BRAKED
+from torchpark.aids.step import BRAKED, POSITION
 from torchpark.checks import check_device
 from torchpark.config import ParkingConfig, RewardConfig, check_seed, is_integer, require
 from torchpark.curriculum import PAPER_LEVELS
-from trainers.features import FEATURES, POSITION
+from trainers.features import FEATURES
 
 
 @dataclass

@@ -25,13 +25,12 @@ from torchpark import (
     ScanMemory,
     SlotGaps,
 )
-from torchpark.aids.step import BRAKED
+from torchpark.aids.step import BRAKED, POSITION
 
 if TYPE_CHECKING:
     from trainers.config import AgentConfig
 
 POLICY_INPUT = "observation_policy"  # the raw policy input the features build up
-POSITION = "position"  # the env's output with AidsConfig.observe_position
 
 
 @dataclass(frozen=True)
@@ -43,7 +42,6 @@ class Feature:
 
     build: Callable[[ParkingEnv, AgentConfig, str], list[Transform]]
     reads: tuple[str, ...] = ()
-    help: str = ""
 
 
 def _position(base: ParkingEnv, agent: AgentConfig, source: str) -> list[Transform]:
@@ -57,24 +55,17 @@ def _brake(base: ParkingEnv, agent: AgentConfig, source: str) -> list[Transform]
 
 
 FEATURES: dict[str, Feature] = {
-    "goal": Feature(lambda base, agent, source: [GoalFrameFeatures(source, POLICY_INPUT)],
-                    help="the goal seen from the car (GoalFrameFeatures)"),
+    "goal": Feature(lambda base, agent, source: [GoalFrameFeatures(source, POLICY_INPUT)]),
     "clearance": Feature(lambda base, agent, source: [
-        ClearanceFeatures(base.config, source, POLICY_INPUT)],
-        help="the gap along each ray past the car's box (ClearanceFeatures)"),
+        ClearanceFeatures(base.config, source, POLICY_INPUT)]),
     "gear": Feature(lambda base, agent, source: [
-        GearTravelFeatures(base.config.vehicle.dt * base.action_repeat, source, POLICY_INPUT)],
-        help="the gear last moved in and the travel in it (GearTravelFeatures)"),
+        GearTravelFeatures(base.config.vehicle.dt * base.action_repeat, source, POLICY_INPUT)]),
     "scan_memory": Feature(lambda base, agent, source: [
-        ScanMemory(base.config, agent.memory_scans, source, POLICY_INPUT)],
-        help="per ray, the nearest gap of the last agent.memory_scans scans (ScanMemory)"),
+        ScanMemory(base.config, agent.memory_scans, source, POLICY_INPUT)]),
     "slots": Feature(lambda base, agent, source: [
-        SlotGaps(base.config, source, POSITION, POLICY_INPUT)], reads=(POSITION,),
-        help="per ray, the gap to the nearest other slot (SlotGaps)"),
-    "position": Feature(_position, reads=(POSITION,),
-                        help="the rear axle's (x, y) in the lot, m"),
-    "brake": Feature(_brake, reads=(BRAKED,),
-                     help="the brake's flag: it stopped the last step"),
+        SlotGaps(base.config, source, POSITION, POLICY_INPUT)], reads=(POSITION,)),
+    "position": Feature(_position, reads=(POSITION,)),
+    "brake": Feature(_brake, reads=(BRAKED,)),
 }
 
 

@@ -31,6 +31,7 @@ from torchpark.sim.world import World
 # the brake stopped the last step of dt (bool), the steps of dt it stopped or steered this
 # episode (int64); the docking law drives this episode (bool).
 BRAKED, INTERVENTIONS, DOCKING_ENGAGED = "braked", "interventions", "docking_engaged"
+POSITION = "position"  # with AidsConfig.observe_position: the rear axle's (x, y)
 BRAKE_KEYS = (BRAKED, INTERVENTIONS)
 DOCKING_KEYS = (DOCKING_ENGAGED,)
 
@@ -52,7 +53,7 @@ def output_specs(aids: AidsConfig, num_envs: int, device: torch.device) -> dict[
                                                   device=device)
              for key in output_keys(aids)}
     if aids.observe_position:
-        specs["position"] = Unbounded(shape=(n, 2), dtype=torch.float32, device=device)
+        specs[POSITION] = Unbounded(shape=(n, 2), dtype=torch.float32, device=device)
     return specs
 
 
