@@ -41,7 +41,7 @@ nitpicky = True
 # Names from other libraries (no inventory is reached) and Python's own typing names.
 nitpick_ignore_regex = [
     (r"py:.*", r"(torch|torchrl|tensordict|numpy|np|gymnasium|stable_baselines3|collections"
-               r"|typing|pathlib|abc)(\..*)?"),
+               r"|typing|pathlib|abc|PIL)(\..*)?"),
     # private bases and type variables, which the site does not document
     (r"py:.*", r"torchpark\..*\._\w+|torchpark\.sim\.records\.R|torchpark\.sim\.step\.RowsT"),
     (r"py:.*", r"(Tensor|TensorDict|TensorDictBase|TensorSpec|Composite|Bounded|Unbounded"

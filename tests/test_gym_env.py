@@ -320,7 +320,9 @@ def test_human_mode_shows_each_frame_in_a_window(monkeypatch):
     for _ in range(3):
         env.step(env.action_space.sample())
         shown = pygame.surfarray.array3d(pygame.display.get_surface()).swapaxes(0, 1)
-        np.testing.assert_array_equal(shown, env.unwrapped.env.render(0))
+        # the lot with the overlay, on in the window by default
+        np.testing.assert_array_equal(shown, env.unwrapped.env.render(0,
+                                                                      env.unwrapped.readout()))
     assert env.render() is None  # Gymnasium's convention: the window is the output
     env.close()
     assert pygame.display.get_surface() is None

@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from torchpark import ParkingEnv
-from torchpark.media.rendering import EGO, GOAL, PARKED, LotRenderer, picture_grid
+from torchpark.media.palette import EGO, GOAL, PARKED
+from torchpark.media.rendering import LotRenderer, picture_grid
 
 
 def colour_count(picture: np.ndarray, colour: tuple[int, int, int]) -> int:

@@ -75,6 +75,7 @@ from torchpark.snapshots import build_of, restore_snapshot, take_snapshot
 from torchpark.specs import env_specs
 
 if TYPE_CHECKING:  # Pillow, imported on the first picture
+    from torchpark.media.overlay import Readout
     from torchpark.media.rendering import LotRenderer
 
 __all__ = ["MAX_BLOCKS_AHEAD", "ParkingEnv", "check_device"]
@@ -344,22 +345,57 @@ class ParkingEnv(EnvBase):
         self._rows = Rows(AidedState(sim._replace(steps=steps), aid), observation, cost)
 
     # ------------------------------------------------------------------ pictures
-    def render(self, index: int = 0) -> np.ndarray:
+    def render(self, index: int = 0, readout: Readout | None = None) -> np.ndarray:
         """Picture of env ``index``'s lot now, (H, W, 3) uint8 (see
-        :mod:`torchpark.media.rendering`)."""
+        :mod:`torchpark.media.rendering`); ``readout`` (:meth:`readout`) writes its numbers
+        on it and, near the goal, draws the zoom (:mod:`torchpark.media.overlay`)."""
+        index = self._checked_index(index)
+        return self.render_grid([index], readouts=None if readout is None else [readout])
+
+    def readout(self, index: int = 0, tensordict: TensorDictBase | None = None) -> Readout:
+        """Env ``index``'s numbers for a picture's overlay: its step count, speed, parking cost
+        against :attr:`success_threshold` and pose error in the goal's frame from its state
+        now; the steering and the outcome from ``tensordict``, what ``step`` returned
+        (its ``action`` and ``next``); None: before a step (no steering, no outcome)."""
+        index = self._checked_index(index)
+        if not self._started:
+            raise RuntimeError("ParkingEnv.readout before reset: call env.reset() first")
+        from torchpark.media.overlay import Readout, goal_frame_error  # Pillow, on demand
+
+        sim = self._rows.state.sim
+        along, across, heading = goal_frame_error(sim.pose[index], sim.goal[index]).tolist()
+        steer, success, collision = None, False, False
+        if tensordict is not None:
+            outcome = tensordict.get("next", None)
+            if outcome is None or "action" not in tensordict.keys():
+                raise ValueError("tensordict must be what ParkingEnv.step returned (with "
+                                 "'action' and 'next'), got one without them")
+            steer = float(tensordict["action"][index, 1])
+            success = bool(outcome["success"][index, 0])
+            collision = bool(outcome["collision"][index, 0])
+        return Readout(step=int(sim.steps[index]), speed=float(sim.speed[index]), steer=steer,
+                       cost=float(self._rows.cost[index]), threshold=self.success_threshold,
+                       success=success, collision=collision, along=along, across=across,
+                       heading=heading)
+
+    def _checked_index(self, index: int) -> int:
         if not is_integer(index) or not 0 <= index < self.num_envs:
             raise IndexError(f"index must be an int in [0, {self.num_envs - 1}], got {index!r}")
-        return self.render_grid([int(index)])
+        return int(index)
 
-    def render_grid(self, indices: Sequence[int] | None = None, columns: int | None = None
-                    ) -> np.ndarray:
+    def render_grid(self, indices: Sequence[int] | None = None, columns: int | None = None,
+                    readouts: Sequence[Readout] | None = None) -> np.ndarray:
         """Pictures of several envs' lots (default: all) tiled row by row into one image,
         ``columns`` wide (an int in [1, len(indices)]; default about the square root). A grid
         larger than the host's free memory is refused before it is drawn. Each picture says
-        which layer drove its last step where the brake or the docking law is on."""
+        which layer drove its last step where the brake or the docking law is on, and with
+        ``readouts`` (one :meth:`readout` per index) its numbers."""
         if not self._started:
             raise RuntimeError("ParkingEnv.render before reset: call env.reset() first")
         indices, columns = check_pictures(indices, columns, self.num_envs)
+        if readouts is not None and len(readouts) != len(indices):
+            raise ValueError(f"readouts must hold one readout per index ({len(indices)}), "
+                             f"got {len(readouts)}")
         from torchpark.media.rendering import LotRenderer, picture_envs  # Pillow, on demand
 
         if self._renderer is None:
@@ -369,7 +405,8 @@ class ParkingEnv(EnvBase):
                    f"render_grid of {len(indices)} pictures", torch.device("cpu"))
         aid = take_rows(self._rows.state.aids, torch.tensor(indices, device=self.device))
         return picture_envs(self._renderer, self._rows.state.sim, self._rows.observation,
-                            indices, columns, drivers(self._agent, aid))
+                            indices, columns, drivers(self._agent, aid),
+                            None if readouts is None else list(readouts))
 
     # ------------------------------------------------------------------ EnvBase hooks
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: object

@@ -6,7 +6,9 @@ Keyword arguments of ``make``/``make_vec``: ``occupancy``, ``device``, ``seed`` 
 seed; ``reset(seed=...)`` reseeds), ``compile_step``, ``physical_actions``, ``config`` (a
 :class:`ParkingConfig`), ``aids`` (an :class:`AidsConfig`; None, the paper's env, by default)
 and any :class:`ParkingConfig` field (``reward=RewardConfig(...)``), which replaces that
-field of ``config``. The episode limit is Gymnasium's ``max_episode_steps`` (registered as
+field of ``config``; ``make`` also takes ``overlay`` (the numbers on each picture: on in the
+``"human"`` window, off in ``"rgb_array"`` frames by default). The episode limit is
+Gymnasium's ``max_episode_steps`` (registered as
 the paper's 1,000 steps, which ``spec.max_episode_steps`` says): ``make`` puts Gymnasium's
 ``TimeLimit`` there, ``make_vec`` passes it to the vector env, and either class built
 directly takes it as its own limit (``ParkingConfig.max_steps``, which is not a keyword
@@ -26,7 +28,7 @@ which ``action_space.contains`` refuses too, is refused. Observations are the pa
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium
 import numpy as np
@@ -40,6 +42,9 @@ from torchpark.aids.step import BRAKED, DOCKING_ENGAGED, INTERVENTIONS, POSITION
 from torchpark.config import ParkingConfig, check_flag, is_integer
 from torchpark.env import ParkingEnv
 from torchpark.sim.observation import NAV_DIM
+
+if TYPE_CHECKING:  # Pillow, imported on the first picture
+    from torchpark.media.overlay import Readout
 
 ENV_ID = "torchpark/Parking-v0"
 GOAL_ENV_ID = "torchpark/ParkingGoal-v0"  # torchpark.goal_env
@@ -72,7 +77,8 @@ def _make_batched(num_envs: int, occupancy: float | None, device: torch.device |
     unknown = sorted(set(fields) - names)
     if unknown:
         raise TypeError(f"unknown keyword arguments {unknown}: expected occupancy, device, "
-                        f"seed, compile_step, physical_actions, config, aids, render_mode or "
+                        f"seed, compile_step, physical_actions, config, aids, render_mode, "
+                        f"overlay (one env's) or "
                         f"ParkingConfig fields {sorted(names)}")
     config = dataclasses.replace(config, **fields)
     env = ParkingEnv(num_envs, device=device, seed=seed, config=config, aids=aids,
@@ -202,6 +208,10 @@ class ParkingGymEnv(gymnasium.Env):
     ``reset(options={"occupancy": p})`` changes the occupancy of this and later lots.
     ``gymnasium.make`` wraps it in Gymnasium's ``TimeLimit`` at ``spec.max_episode_steps``
     (1,000, the env's own limit; ``max_episode_steps=N`` changes it).
+    ``overlay`` writes the step, speed, steering, cost C against the success threshold, the
+    outcome and the pose error on each picture, with a zoom near the goal
+    (:mod:`torchpark.media.overlay`): on by default in the ``"human"`` window, off in
+    ``"rgb_array"`` frames.
     """
 
     # an attribute of Gymnasium's Env (set per instance below), so no ClassVar
@@ -212,8 +222,11 @@ class ParkingGymEnv(gymnasium.Env):
                  device: torch.device | str = "cpu", seed: int | None = None,
                  compile_step: bool = False, physical_actions: bool = False,
                  config: ParkingConfig | None = None, aids: AidsConfig | None = None,
-                 max_episode_steps: int | None = None, **fields: Any) -> None:
+                 max_episode_steps: int | None = None, overlay: bool | None = None,
+                 **fields: Any) -> None:
         self.render_mode = _check_render_mode(render_mode, RENDER_MODES)
+        self.overlay = render_mode == "human" if overlay is None else check_flag(overlay,
+                                                                                "overlay")
         self.env = _make_batched(1, occupancy, device, seed, compile_step, config, aids,
                                  max_episode_steps, fields)
         self.observation_space, self._action_box, self._scale = _spaces(
@@ -228,6 +241,7 @@ class ParkingGymEnv(gymnasium.Env):
         self._action = TensorDict({"action": torch.zeros(1, 2, device=self.env.device)},
                                   batch_size=[1], device=self.env.device)
         self._ended = True  # no episode yet: reset() first
+        self._stepped = False  # whether self._action holds the last step (not a reset)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
@@ -235,7 +249,7 @@ class ParkingGymEnv(gymnasium.Env):
         ``options`` may set ``occupancy``. Returns the observation (23,) float32 and info."""
         super().reset(seed=seed)
         td = _reset_lots(self.env, seed, options)
-        self._ended = False
+        self._ended, self._stepped = False, False
         self._show()
         return self._observe(td), self._info(td)
 
@@ -250,7 +264,7 @@ class ParkingGymEnv(gymnasium.Env):
                                                   self.env.device)[None] * self._scale
         nxt = self.env.step(self._action)["next"]
         terminated, truncated = bool(nxt["terminated"][0, 0]), bool(nxt["truncated"][0, 0])
-        self._ended = terminated or truncated
+        self._ended, self._stepped = terminated or truncated, True
         self._show()
         return (self._observe(nxt), float(nxt["reward"][0, 0]), terminated, truncated,
                 self._info(nxt))
@@ -265,7 +279,7 @@ class ParkingGymEnv(gymnasium.Env):
         if self.render_mode == "human":
             self._show()
             return None
-        return self.env.render(0)
+        return self._picture()
 
     def close(self) -> None:
         """Close the window, if one is open."""
@@ -275,9 +289,19 @@ class ParkingGymEnv(gymnasium.Env):
 
     def _show(self) -> None:
         """Human mode: the lot now in the window (the goal outlined over the car; with the
-        brake or the docking law on, which layer drove the step)."""
+        brake or the docking law on, which layer drove the step; the overlay)."""
         if self._window is not None:
-            self._window.show(self.env.render(0))
+            self._window.show(self._picture())
+
+    def _picture(self) -> np.ndarray:
+        """The lot now, with the overlay's numbers where ``overlay`` is on."""
+        return self.env.render(0, self.readout() if self.overlay else None)
+
+    def readout(self) -> Readout:
+        """The overlay's numbers now (:meth:`ParkingEnv.readout`): the step count, speed,
+        the last step's steering delta (rad, the env's physical action) and outcome, the
+        cost C against the success threshold and the pose error in the goal's frame."""
+        return self.env.readout(0, self._action if self._stepped else None)
 
     def _observe(self, td: TensorDictBase) -> Any:
         """The observation Gymnasium returns, from the step's (or reset's) output."""

@@ -14,24 +14,14 @@ import torch
 from PIL import Image, ImageDraw
 
 from torchpark.config import ParkingConfig
+from torchpark.media.overlay import Readout, draw_label, draw_zoom, readout_lines
+from torchpark.media.palette import ASPHALT, EGO, GOAL, HEADING, HIT, PARKED, RAY, SLOT_LINE, WALL
 from torchpark.sim.geometry import box_corners
 from torchpark.sim.layout import LotLayout
 from torchpark.sim.lidar import ray_angles
 from torchpark.sim.observation import NAV_DIM
 from torchpark.sim.state import ParkingState
 from torchpark.sim.vehicle import vehicle_boxes
-
-ASPHALT = (52, 54, 60)
-WALL = (150, 150, 150)
-SLOT_LINE = (225, 225, 225)
-PARKED = (70, 110, 175)
-GOAL = (60, 170, 90)
-EGO = (235, 95, 40)
-HEADING = (255, 240, 200)
-RAY = (235, 215, 90)
-HIT = (255, 60, 60)
-DRIVER_TEXT = (20, 20, 20)
-LABEL = (255, 255, 255)
 
 
 class LotRenderer:
@@ -79,14 +69,17 @@ class LotRenderer:
         return np.stack((px, py), axis=-1)
 
     def picture(self, parked: np.ndarray, goal_slot: int, pose: np.ndarray,
-                lidar: np.ndarray | None = None, driver: str | None = None) -> np.ndarray:
+                lidar: np.ndarray | None = None, driver: str | None = None,
+                readout: Readout | None = None) -> np.ndarray:
         """One env's picture, (H, W, 3) uint8.
 
         parked: (S,) bool, slots holding a car; goal_slot: index of the goal slot; pose: (3,)
         rear axle (x m, y m, psi rad); lidar: (n_rays,) distances divided by the range, as in
         the observation (None: no rays); driver: which layer drove the last step (written in
-        the top-left corner, e.g. "policy", "docking law", "brake"; None: nothing written).
-        The goal slot's outline is drawn over the car, so it shows when the car covers it.
+        the top-left corner, e.g. "policy", "docking law", "brake"; None: nothing written);
+        readout: the numbers written below it and, near the goal, the zoom in the top-right
+        corner (:mod:`torchpark.media.overlay`; None: neither). The goal slot's outline is
+        drawn over the car, so it shows when the car covers it.
         """
         image = self._background.copy()
         draw = ImageDraw.Draw(image)
@@ -117,10 +110,12 @@ class LotRenderer:
         draw.line([tuple(axle), tuple(front.mean(axis=0))], fill=HEADING, width=1)
         draw.polygon([tuple(p) for p in goal], outline=GOAL,
                      width=max(1, round(self.scale / 5)))
-        if driver is not None:  # on a white label in the top-left corner
-            box = draw.textbbox((4, 2), f"driving: {driver}")
-            draw.rectangle((box[0] - 2, box[1] - 1, box[2] + 2, box[3] + 1), fill=LABEL)
-            draw.text((4, 2), f"driving: {driver}", fill=DRIVER_TEXT)
+        lines = [f"driving: {driver}"] if driver is not None else []
+        if readout is not None:
+            lines += readout_lines(readout)
+            draw_zoom(image, readout, self.config.vehicle, self.scale)
+        if lines:
+            draw_label(draw, lines)
         return np.asarray(image)
 
 
@@ -150,10 +145,11 @@ def picture_grid(pictures: list[np.ndarray] | np.ndarray, columns: int | None = 
 
 def picture_envs(renderer: LotRenderer, state: ParkingState, observation: torch.Tensor,
                  rows: list[int], columns: int | None = None,
-                 drivers: list[str] | None = None) -> np.ndarray:
+                 drivers: list[str] | None = None, readouts: list[Readout] | None = None
+                 ) -> np.ndarray:
     """Pictures of the lots of ``rows`` of a batched state (``observation`` (N, D): the
-    LIDAR is drawn from it; ``drivers``: each row's driving layer, written on its picture):
-    one (H, W, 3) uint8 picture for one row, else a grid."""
+    LIDAR is drawn from it; ``drivers``: each row's driving layer, ``readouts`` its numbers,
+    written on its picture): one (H, W, 3) uint8 picture for one row, else a grid."""
     index = torch.tensor(rows, device=state.pose.device)
     s = renderer.num_slots
     parked = (state.present[index, :s] > 0.5).cpu().numpy()
@@ -161,6 +157,8 @@ def picture_envs(renderer: LotRenderer, state: ParkingState, observation: torch.
     pose = state.pose[index].cpu().numpy()
     lidar = observation[index, NAV_DIM:].cpu().numpy()
     labels: list[str | None] = list(drivers) if drivers is not None else [None] * len(rows)
+    numbers: list[Readout | None] = (list(readouts) if readouts is not None
+                                     else [None] * len(rows))
     pictures = [renderer.picture(*row)
-                for row in zip(parked, goal, pose, lidar, labels, strict=True)]
+                for row in zip(parked, goal, pose, lidar, labels, numbers, strict=True)]
     return pictures[0] if len(pictures) == 1 else picture_grid(pictures, columns)
