@@ -7,12 +7,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import TypeVar
 
 import numpy as np
 import torch
 
 from torchpark.config import is_integer, is_number
 from torchpark.sim.state import ParkingState
+
+T = TypeVar("T")
 
 
 def check_count(value: object, name: str, low: int, high: int | None = None) -> int:
@@ -22,6 +25,22 @@ def check_count(value: object, name: str, low: int, high: int | None = None) -> 
         allowed = f">= {low}" if high is None else f"in [{low}, {high}]"
         raise ValueError(f"{name} must be an int {allowed}, got {value!r}")
     return int(value)
+
+
+def check_optional(value: T | None, kind: type[T], name: str) -> T | None:
+    """``value`` if it is None or a ``kind``, else TypeError naming ``name``."""
+    if value is not None and not isinstance(value, kind):
+        article = "an" if kind.__name__[0] in "AEIOU" else "a"
+        raise TypeError(f"{name} must be {article} {kind.__name__} or None, got "
+                        f"{type(value).__name__}")
+    return value
+
+
+def check_index(index: object, num_envs: int) -> int:
+    """``index`` as an int, or IndexError unless it is an int in [0, ``num_envs``)."""
+    if not is_integer(index) or not 0 <= index < num_envs:
+        raise IndexError(f"index must be an int in [0, {num_envs - 1}], got {index!r}")
+    return int(index)
 
 
 def check_device(device: torch.device | str | int, name: str = "device") -> torch.device:

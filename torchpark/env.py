@@ -49,6 +49,8 @@ from torchpark.checks import (
     check_action,
     check_count,
     check_device,
+    check_index,
+    check_optional,
     check_pictures,
     check_row_mask,
     check_state,
@@ -61,7 +63,6 @@ from torchpark.config import (
     check_flag,
     check_occupancy,
     check_seed,
-    is_integer,
 )
 from torchpark.memory import check_fits
 from torchpark.resets import MAX_BLOCKS_AHEAD, EpisodeDraw, HostResets, RingResets
@@ -173,10 +174,8 @@ class ParkingEnv(EnvBase):
         compile_step = check_flag(compile_step, "compile_step")
         validate_actions = check_flag(validate_actions, "validate_actions")
         compile_kwargs = check_compile_kwargs(compile_kwargs)
-        if config is not None and not isinstance(config, ParkingConfig):
-            raise TypeError(f"config must be a ParkingConfig, got {type(config).__name__}")
-        if aids is not None and not isinstance(aids, AidsConfig):
-            raise TypeError(f"aids must be an AidsConfig or None, got {type(aids).__name__}")
+        config, aids = (check_optional(config, ParkingConfig, "config"),
+                        check_optional(aids, AidsConfig, "aids"))
         device = check_device(device)
         reset_in_step = (device.type == "cuda" if reset_in_step is None
                          else check_flag(reset_in_step, "reset_in_step"))
@@ -199,8 +198,7 @@ class ParkingEnv(EnvBase):
         check_fits(n * row_bytes(obstacles, dim) * (1 + blocks + _WORKING_ROWS[compile_step]),
                    f"ParkingEnv(num_envs={n}{named})", self.device)
         self._rows = Rows.zeros(n, obstacles, dim, self.device)
-        build = (partial(compile_all, compile_kwargs=compile_kwargs) if compile_step
-                 else list)
+        build = partial(compile_all, compile_kwargs=compile_kwargs) if compile_step else list
         new_episodes, = build([partial(aided_new_episodes, world=self._world, cfg=cfg)])
         draw = EpisodeDraw(n, cfg.occupancy, self.layout, cfg.lot, self._world,
                            agent.near_goal_starts, new_episodes,
@@ -338,75 +336,42 @@ class ParkingEnv(EnvBase):
         generator, so that the current episodes end at spread-out times (for training: after
         a full reset all N would otherwise time out together, and a batch of a few steps from
         each env would be one time slice of synchronised episodes, again at every timeout)."""
-        self._resets.redraw_ahead()  # the ring's blocks ahead drawn after this draw
-        steps = torch.randint(self.config.max_steps, (self.num_envs,),
-                              generator=self._resets.draw.generator, device=self.device)
-        (sim, aid), observation, cost = self._rows
-        self._rows = Rows(AidedState(sim._replace(steps=steps), aid), observation, cost)
+        self._rows = self._resets.spread_steps(self._rows, self.config.max_steps)
 
     # ------------------------------------------------------------------ pictures
     def render(self, index: int = 0, readout: Readout | None = None) -> np.ndarray:
-        """Picture of env ``index``'s lot now, (H, W, 3) uint8 (see
-        :mod:`torchpark.media.rendering`); ``readout`` (:meth:`readout`) writes its numbers
-        on it and, near the goal, draws the zoom (:mod:`torchpark.media.overlay`)."""
-        index = self._checked_index(index)
-        return self.render_grid([index], readouts=None if readout is None else [readout])
+        """Picture of env ``index``'s lot now, (H, W, 3) uint8 (:mod:`torchpark.media`), with
+        ``readout``'s numbers (:meth:`readout`) and, near the goal, its zoom."""
+        return self.render_grid([check_index(index, self.num_envs)],
+                                readouts=None if readout is None else [readout])
 
     def readout(self, index: int = 0, tensordict: TensorDictBase | None = None) -> Readout:
-        """Env ``index``'s numbers for a picture's overlay: its step count, speed, parking cost
-        against :attr:`success_threshold` and pose error in the goal's frame from its state
-        now; the steering and the outcome from ``tensordict``, what ``step`` returned
-        (its ``action`` and ``next``); None: before a step (no steering, no outcome)."""
-        index = self._checked_index(index)
+        """Env ``index``'s numbers for a picture's overlay, from its state now and ``step``'s
+        output ``tensordict`` (:func:`torchpark.media.overlay.read_row`)."""
+        index = check_index(index, self.num_envs)
         if not self._started:
             raise RuntimeError("ParkingEnv.readout before reset: call env.reset() first")
-        from torchpark.media.overlay import Readout, goal_frame_error  # Pillow, on demand
+        from torchpark.media.overlay import read_row  # Pillow, on demand
 
-        sim = self._rows.state.sim
-        along, across, heading = goal_frame_error(sim.pose[index], sim.goal[index]).tolist()
-        steer, success, collision = None, False, False
-        if tensordict is not None:
-            outcome = tensordict.get("next", None)
-            if outcome is None or "action" not in tensordict.keys():
-                raise ValueError("tensordict must be what ParkingEnv.step returned (with "
-                                 "'action' and 'next'), got one without them")
-            steer = float(tensordict["action"][index, 1])
-            success = bool(outcome["success"][index, 0])
-            collision = bool(outcome["collision"][index, 0])
-        return Readout(step=int(sim.steps[index]), speed=float(sim.speed[index]), steer=steer,
-                       cost=float(self._rows.cost[index]), threshold=self.success_threshold,
-                       success=success, collision=collision, along=along, across=across,
-                       heading=heading)
-
-    def _checked_index(self, index: int) -> int:
-        if not is_integer(index) or not 0 <= index < self.num_envs:
-            raise IndexError(f"index must be an int in [0, {self.num_envs - 1}], got {index!r}")
-        return int(index)
+        return read_row(self._rows.state.sim, self._rows.cost, self.success_threshold, index,
+                        tensordict)
 
     def render_grid(self, indices: Sequence[int] | None = None, columns: int | None = None,
                     readouts: Sequence[Readout] | None = None) -> np.ndarray:
         """Pictures of several envs' lots (default: all) tiled row by row into one image,
-        ``columns`` wide (an int in [1, len(indices)]; default about the square root). A grid
-        larger than the host's free memory is refused before it is drawn. Each picture says
-        which layer drove its last step where the brake or the docking law is on, and with
-        ``readouts`` (one :meth:`readout` per index) its numbers."""
+        ``columns`` wide (an int in [1, len(indices)]; default about the square root), each
+        with its driving layer and ``readouts``' numbers (one :meth:`readout` per index;
+        :func:`~torchpark.media.rendering.picture_envs`)."""
         if not self._started:
             raise RuntimeError("ParkingEnv.render before reset: call env.reset() first")
         indices, columns = check_pictures(indices, columns, self.num_envs)
-        if readouts is not None and len(readouts) != len(indices):
-            raise ValueError(f"readouts must hold one readout per index ({len(indices)}), "
-                             f"got {len(readouts)}")
         from torchpark.media.rendering import LotRenderer, picture_envs  # Pillow, on demand
 
         if self._renderer is None:
             self._renderer = LotRenderer(self.layout, self.config)
-        width, height = self._renderer.size
-        check_fits(2 * len(indices) * width * height * 3,  # the pictures and their grid
-                   f"render_grid of {len(indices)} pictures", torch.device("cpu"))
         aid = take_rows(self._rows.state.aids, torch.tensor(indices, device=self.device))
         return picture_envs(self._renderer, self._rows.state.sim, self._rows.observation,
-                            indices, columns, drivers(self._agent, aid),
-                            None if readouts is None else list(readouts))
+                            indices, columns, drivers(self._agent, aid), readouts)
 
     # ------------------------------------------------------------------ EnvBase hooks
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: object

@@ -177,6 +177,14 @@ class Resets(ABC):
         """Hand out none of the episodes drawn so far: later resets draw new ones (from the
         generator, at the occupancy and against the success threshold of that time)."""
 
+    def spread_steps(self, rows: Rows, max_steps: int) -> Rows:
+        """``rows`` with every step count a uniform draw in [0, ``max_steps``) from the
+        generator, drawn where the host path would draw it (:meth:`redraw_ahead`)."""
+        self.redraw_ahead()
+        steps = torch.randint(max_steps, rows.cost.shape, generator=self.draw.generator,
+                              device=rows.cost.device)
+        return rows._replace(state=rows.state._replace(sim=rows.state.sim._replace(steps=steps)))
+
     def threshold_changed(self) -> None:
         """The success threshold changes: episodes drawn ahead with near-goal starts, which
         are drawn clear of the success test, are discarded (the others do not depend on

@@ -3,9 +3,10 @@ steering, the parking cost C against the success threshold, the outcome, and the
 error in the goal's frame, written in the top-left corner; and near the goal a zoom, drawn
 at a scale where a millimetre shows, of the rear axle against the goal pose.
 
-:class:`Readout` holds the numbers (``ParkingEnv.readout`` reads them from the env's rows and
-a step's output); :func:`readout_lines` writes them; :func:`draw_zoom` draws the zoom. The
-pictures of :mod:`torchpark.media.rendering` draw both when given a readout.
+:class:`Readout` holds the numbers (:func:`read_row` reads them from a batched state and a
+step's output, for ``ParkingEnv.readout``); :func:`readout_lines` writes them;
+:func:`draw_zoom` draws the zoom. The pictures of :mod:`torchpark.media.rendering` draw both
+when given a readout.
 """
 
 from __future__ import annotations
@@ -16,10 +17,12 @@ from typing import NamedTuple
 import numpy as np
 import torch
 from PIL import Image, ImageDraw
+from tensordict import TensorDictBase
 
 from torchpark.config import VehicleConfig
 from torchpark.media.palette import ASPHALT, EGO, GOAL, LABEL, TEXT
 from torchpark.sim.geometry import box_corners
+from torchpark.sim.state import ParkingState
 from torchpark.sim.vehicle import vehicle_boxes
 
 # The zoom shows when the rear axle is within ZOOM_RADIUS m of the goal's, in a square inset of
@@ -66,6 +69,27 @@ def goal_frame_error(pose: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
     dpsi = pose[..., 2] - goal[..., 2]
     heading = torch.atan2(torch.sin(dpsi), torch.cos(dpsi))
     return torch.stack((cos * dx + sin * dy, -sin * dx + cos * dy, heading), dim=-1)
+
+
+def read_row(state: ParkingState, cost: torch.Tensor, threshold: float, index: int,
+             tensordict: TensorDictBase | None = None) -> Readout:
+    """Row ``index``'s :class:`Readout` from a batched state and its parking costs ``cost``
+    (N,) against ``threshold``; the steering and the outcome from ``tensordict``, what a
+    step returned (its ``action`` and ``next``); None: before a step (no steering, no
+    outcome)."""
+    along, across, heading = goal_frame_error(state.pose[index], state.goal[index]).tolist()
+    steer, success, collision = None, False, False
+    if tensordict is not None:
+        outcome = tensordict.get("next", None)
+        if outcome is None or "action" not in tensordict.keys():
+            raise ValueError("tensordict must be what ParkingEnv.step returned (with "
+                             "'action' and 'next'), got one without them")
+        steer = float(tensordict["action"][index, 1])
+        success = bool(outcome["success"][index, 0])
+        collision = bool(outcome["collision"][index, 0])
+    return Readout(step=int(state.steps[index]), speed=float(state.speed[index]), steer=steer,
+                   cost=float(cost[index]), threshold=threshold, success=success,
+                   collision=collision, along=along, across=across, heading=heading)
 
 
 def _length(metres: float) -> str:

@@ -8,6 +8,7 @@ slot lines) is drawn once per renderer; a picture copies it and draws the per-en
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -16,6 +17,7 @@ from PIL import Image, ImageDraw
 from torchpark.config import ParkingConfig
 from torchpark.media.overlay import Readout, draw_label, draw_zoom, readout_lines
 from torchpark.media.palette import ASPHALT, EGO, GOAL, HEADING, HIT, PARKED, RAY, SLOT_LINE, WALL
+from torchpark.memory import check_fits
 from torchpark.sim.geometry import box_corners
 from torchpark.sim.layout import LotLayout
 from torchpark.sim.lidar import ray_angles
@@ -145,11 +147,18 @@ def picture_grid(pictures: list[np.ndarray] | np.ndarray, columns: int | None = 
 
 def picture_envs(renderer: LotRenderer, state: ParkingState, observation: torch.Tensor,
                  rows: list[int], columns: int | None = None,
-                 drivers: list[str] | None = None, readouts: list[Readout] | None = None
+                 drivers: list[str] | None = None, readouts: Sequence[Readout] | None = None
                  ) -> np.ndarray:
     """Pictures of the lots of ``rows`` of a batched state (``observation`` (N, D): the
     LIDAR is drawn from it; ``drivers``: each row's driving layer, ``readouts`` its numbers,
-    written on its picture): one (H, W, 3) uint8 picture for one row, else a grid."""
+    written on its picture): one (H, W, 3) uint8 picture for one row, else a grid. A grid
+    larger than the host's free memory is refused before it is drawn."""
+    if readouts is not None and len(readouts) != len(rows):
+        raise ValueError(f"readouts must hold one readout per index ({len(rows)}), "
+                         f"got {len(readouts)}")
+    width, height = renderer.size
+    check_fits(2 * len(rows) * width * height * 3,  # the pictures and their grid
+               f"render_grid of {len(rows)} pictures", torch.device("cpu"))
     index = torch.tensor(rows, device=state.pose.device)
     s = renderer.num_slots
     parked = (state.present[index, :s] > 0.5).cpu().numpy()
