@@ -7,15 +7,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TypeVar
 
 import numpy as np
 import torch
 
 from torchpark.config import is_integer, is_number
 from torchpark.sim.state import ParkingState
-
-T = TypeVar("T")
 
 
 def check_count(value: object, name: str, low: int, high: int | None = None) -> int:
@@ -27,13 +24,11 @@ def check_count(value: object, name: str, low: int, high: int | None = None) -> 
     return int(value)
 
 
-def check_optional(value: T | None, kind: type[T], name: str) -> T | None:
-    """``value`` if it is None or a ``kind``, else TypeError naming ``name``."""
+def check_optional(value: object, kind: type, name: str) -> None:
+    """TypeError naming ``name`` unless ``value`` is None or a ``kind``."""
     if value is not None and not isinstance(value, kind):
         article = "an" if kind.__name__[0] in "AEIOU" else "a"
-        raise TypeError(f"{name} must be {article} {kind.__name__} or None, got "
-                        f"{type(value).__name__}")
-    return value
+        raise TypeError(f"{name} must be {article} {kind.__name__} or None, got {value!r}")
 
 
 def check_index(index: object, num_envs: int) -> int:

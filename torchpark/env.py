@@ -67,11 +67,11 @@ from torchpark.config import (
 from torchpark.memory import check_fits
 from torchpark.resets import MAX_BLOCKS_AHEAD, EpisodeDraw, HostResets, RingResets
 from torchpark.rows import Rows, check_rows, output_fields, row_bytes
-from torchpark.sim.layout import build_layout
+from torchpark.sim.layout import LotLayout, build_layout
 from torchpark.sim.observation import observation_dim, observe
 from torchpark.sim.state import ParkingState
 from torchpark.sim.step import put_rows_, take_rows
-from torchpark.sim.world import build_world
+from torchpark.sim.world import World, build_world
 from torchpark.snapshots import build_of, restore_snapshot, take_snapshot
 from torchpark.specs import env_specs
 
@@ -87,14 +87,16 @@ __all__ = ["MAX_BLOCKS_AHEAD", "ParkingEnv", "check_device"]
 _WORKING_ROWS = {False: 115, True: 12}
 
 
-def _fixed(name: str, doc: str, attribute: str | None = None) -> property:
-    """A read-only attribute ``name`` (held in ``attribute``, a dotted path from the env;
-    ``_name`` by default), set at construction: the step's functions were built from it, so a
-    new value would be taken by some parts of the env and not others."""
+def _fixed(name: str, kind: object, doc: str, attribute: str | None = None) -> property:
+    """A read-only attribute ``name`` of type ``kind`` (held in ``attribute``, a dotted path
+    from the env; ``_name`` by default), set at construction: the step's functions were built
+    from it, so a new value would be taken by some parts of the env and not others."""
     held = operator.attrgetter(attribute or "_" + name)
 
     def get(self: ParkingEnv) -> object:
         return held(self)
+
+    get.__annotations__["return"] = kind  # the type the reference shows
 
     def refuse(self: ParkingEnv, value: object) -> None:
         raise AttributeError(f"ParkingEnv.{name} is fixed at construction (the step was built "
@@ -174,8 +176,8 @@ class ParkingEnv(EnvBase):
         compile_step = check_flag(compile_step, "compile_step")
         validate_actions = check_flag(validate_actions, "validate_actions")
         compile_kwargs = check_compile_kwargs(compile_kwargs)
-        config, aids = (check_optional(config, ParkingConfig, "config"),
-                        check_optional(aids, AidsConfig, "aids"))
+        check_optional(config, ParkingConfig, "config")
+        check_optional(aids, AidsConfig, "aids")
         device = check_device(device)
         reset_in_step = (device.type == "cuda" if reset_in_step is None
                          else check_flag(reset_in_step, "reset_in_step"))
@@ -213,17 +215,17 @@ class ParkingEnv(EnvBase):
         self._renderer: LotRenderer | None = None  # made on the first picture
 
     # ------------------------------------------------------------------ configuration
-    num_envs = _fixed("num_envs", "The number of lots (the batch size).")
-    config = _fixed("config", "The task's :class:`ParkingConfig`.")
-    layout = _fixed("layout", "The lot's geometry (:func:`torchpark.sim.layout.build_layout`).")
-    compiled = _fixed("compiled", "Whether the step and the reset's draw are compiled.")
-    reset_in_step = _fixed("reset_in_step", "Whether ``step_and_maybe_reset`` resets the "
-                           "rows a step ends inside the step's function.",
+    num_envs = _fixed("num_envs", int, "The number of lots (the batch size).")
+    config = _fixed("config", ParkingConfig, "The task's configuration.")
+    layout = _fixed("layout", LotLayout, "The lot's geometry (its slots, walls and goal poses).")
+    compiled = _fixed("compiled", bool, "Whether the step and the reset's draw are compiled.")
+    reset_in_step = _fixed("reset_in_step", bool, "Whether ``step_and_maybe_reset`` resets "
+                           "the rows a step ends inside the step's function.",
                            "_resets.reset_in_step")
-    aids = _fixed("aids", "The agent-side aids' :class:`~torchpark.aids.config.AidsConfig`, "
-                  "None for the paper's env.", "_aids_config")
-    world = _fixed("world", "The constants every env shares, read-only, for analysis and tests "
-                   "(obstacle boxes, goal poses, the success threshold).")
+    aids = _fixed("aids", AidsConfig | None, "The agent-side aids, None for the paper's env.",
+                  "_aids_config")
+    world = _fixed("world", World, "The constants every env shares, read-only, for analysis "
+                   "and tests (obstacle boxes, goal poses, the success threshold).")
 
     @property
     def validate_actions(self) -> bool:

@@ -39,6 +39,7 @@ from tensordict import TensorDict, TensorDictBase
 
 from torchpark.aids.config import AidsConfig
 from torchpark.aids.step import BRAKED, DOCKING_ENGAGED, INTERVENTIONS, POSITION
+from torchpark.checks import check_optional
 from torchpark.config import ParkingConfig, check_flag, is_integer
 from torchpark.env import ParkingEnv
 from torchpark.sim.observation import NAV_DIM
@@ -62,8 +63,7 @@ def _make_batched(num_envs: int, occupancy: float | None, device: torch.device |
                   seed: int | None, compile_step: bool, config: ParkingConfig | None,
                   aids: AidsConfig | None, max_episode_steps: int | None,
                   fields: dict[str, Any]) -> ParkingEnv:
-    if config is not None and not isinstance(config, ParkingConfig):
-        raise TypeError(f"config must be a ParkingConfig or None, got {config!r}")
+    check_optional(config, ParkingConfig, "config")
     config = config if config is not None else ParkingConfig()
     names = {f.name for f in dataclasses.fields(ParkingConfig)}
     if "max_steps" in fields:
