@@ -29,6 +29,7 @@ from torchpark.transforms.features import GoalFrameFeatures
 from trainers.agent import load_agent
 from trainers.checkpoint import load_checkpoint, load_trained
 from trainers.config import env_configs
+from trainers.distill import labels
 from trainers.distill.cli import main
 from trainers.distill.config import PRESETS, DaggerConfig, load_distill_config
 from trainers.distill.fit import fit, passes
@@ -632,3 +633,49 @@ def test_a_replayed_run_fits_a_bounded_draw_and_writes_what_a_full_one_does(tmp_
     assert all(np.isfinite(float(r["loss"])) for r in rows)
     agent = load_agent(str(out / "checkpoint_final.pt"))
     agent.make_env(2, 0.9, seed=0).rollout(3, agent.policy)
+
+
+@pytest.mark.slow
+def test_a_fine_tune_starts_from_its_checkpoint_and_labels_its_own_states_at_once(
+        tmp_path, monkeypatch, capsys):
+    """``student.init``: the run starts from the checkpoint's network and frozen normaliser
+    (at a learning rate of 1e-12 it ends where it began) and the student drives every
+    rollout, iteration 0's included; a checkpoint of another student is refused by the
+    field that differs."""
+    flags = ["student.env.num_envs=4", "dagger.steps=6", "dagger.epochs=1",
+             "dagger.dagger_epochs=1", "dagger.yardstick=2", "dagger.approach=8",
+             "dagger.iterations=1"]
+    first, tuned = tmp_path / "first", tmp_path / "tuned"
+    main(["--preset", "smoke", "--out", str(first), *flags])
+    drivers = []
+    original = labels.rollout
+
+    def recorded(*args):
+        drivers.append(args[5])  # teacher_drives
+        return original(*args)
+
+    monkeypatch.setattr(labels, "rollout", recorded)
+    init = str(first / "checkpoint_final.pt")
+    main(["--preset", "smoke", "--out", str(tuned), *flags, f"student.init={init}",
+          "dagger.lr=1e-12"])
+    assert drivers == [False] * 6
+    a, b = (torch.load(d / "checkpoint_final.pt", weights_only=True) for d in (first, tuned))
+    assert b["trained_by"].startswith(a["trained_by"].split(": ")[0])
+    assert f"fine-tuned from {init}" in b["trained_by"]
+    for key in a["actor"]:
+        torch.testing.assert_close(b["actor"][key], a["actor"][key], rtol=0, atol=1e-8)
+    leaves, spec = tree_flatten(a["obs_norm"])
+    theirs, their_spec = tree_flatten(b["obs_norm"])
+    assert spec == their_spec
+    assert all(torch.equal(x, y) if isinstance(x, torch.Tensor) else x == y
+               for x, y in zip(leaves, theirs, strict=True))
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        main(["--preset", "smoke", "--out", str(tmp_path / "other"), *flags,
+              f"student.init={init}", "student.model.hidden=[32]"])
+    assert (f"student.init: {init} has student.model.hidden=[64, 64], this run "
+            f"student.model.hidden=[32]") in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--preset", "smoke", "--out", str(tmp_path / "none"), *flags,
+              f"student.init={tmp_path / 'missing.pt'}"])
+    assert "student.init: checkpoint" in capsys.readouterr().err

@@ -48,11 +48,15 @@ class StudentConfig:
     (``agent.aids`` only starts half its training episodes near the goal and may observe its
     position), one action per step of dt, a gear and a (speed, steer) pair per gear through
     the power map (``agent.action_exponents`` [3, 1]: 1 mm/s is 0.058 of its output's range,
-    not 2e-4), the goal seen from the car; ``model``: ``fast``'s sizes."""
+    not 2e-4), the goal seen from the car; ``model``: ``fast``'s sizes. ``init``: a checkpoint
+    of this student (its ``env``, ``agent`` and ``model`` sections these) whose network and
+    frozen input normaliser the run starts from, its own states labelled from iteration 0
+    on (a fine-tune); "" (default): a fresh student, iteration 0 driven by the teacher."""
 
     env: EnvConfig = field(default_factory=lambda: EnvConfig(num_envs=128))
     agent: AgentConfig = field(default_factory=_student_agent)
     model: ModelConfig = field(default_factory=lambda: PPO_PRESETS["fast"]().model)
+    init: str = ""
 
 
 @dataclass

@@ -40,9 +40,11 @@ STALL_AWAY = 2.0
 
 def label_iteration(env: TransformedEnv, features: Transform, actor, teacher: Teacher,
                     exponents: torch.Tensor, cfg: DaggerConfig, iteration: int,
-                    generator: torch.Generator) -> tuple[list[torch.Tensor], int, int]:
-    """One DAgger iteration's data: a rollout of ``cfg.steps`` at each occupancy level, the
-    teacher driving in iteration 0 and the student after, and in iteration 0 (with
+                    generator: torch.Generator, teacher_drives: bool
+                    ) -> tuple[list[torch.Tensor], int, int]:
+    """One DAgger iteration's data: a rollout of ``cfg.steps`` at each occupancy level,
+    driven by the teacher where ``teacher_drives`` (a fresh student's iteration 0) and by the
+    student otherwise, and in iteration 0 (with
     ``cfg.approach``) the final-approach states. Returns [inputs (B, D), labels in the
     student's units (B, 2), weights (B,)], the rollout frames and the final-approach states
     among them. ``env``'s normaliser is frozen after iteration 0's rollouts: the teacher's
@@ -54,7 +56,7 @@ def label_iteration(env: TransformedEnv, features: Transform, actor, teacher: Te
     for level in PAPER_LEVELS:
         base.occupancy = level
         x, y, ahead, stalled = rollout(env, actor, teacher, exponents, cfg.steps,
-                                       iteration == 0, cfg.noise, generator)
+                                       teacher_drives, cfg.noise, generator)
         stalls = stalled & (iteration >= cfg.stall_from)
         batches.append((x, y, torch.where(ahead <= cfg.collision_horizon,
                                           cfg.collision_weight, 1.0)

@@ -18,7 +18,8 @@ from torchpark.files import save_torch, write_csv
 from torchpark.runner import run_episodes
 from torchpark.sim.layout import build_layout
 from torchpark.transforms.actions import GearActionMap, PowerActionMap
-from trainers.config import TrainConfig
+from trainers.checkpoint import load_checkpoint
+from trainers.config import TrainConfig, differences
 from trainers.distill.aggregate import Aggregate
 from trainers.distill.config import DistillConfig
 from trainers.distill.fit import fit, passes
@@ -75,7 +76,8 @@ class Student(NamedTuple):
 
 
 def student_of(cfg: DistillConfig) -> Student:
-    """A fresh student of ``cfg`` (torch's random state seeded by the caller)."""
+    """The student of ``cfg``: fresh (torch's random state seeded by the caller), or with
+    ``student.init`` that checkpoint's network and frozen input normaliser."""
     run = cfg.student_run()
     base = make_base_env(run, training=True)
     inputs = policy_input(run, base)
@@ -86,8 +88,32 @@ def student_of(cfg: DistillConfig) -> Student:
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
     actor, _ = build_models(run)
     exponents = torch.tensor(run.agent.action_exponents, device=base.device)
+    if cfg.student.init:
+        checkpoint = init_checkpoint(cfg)
+        actor.load_state_dict(checkpoint["actor"])
+        env.transform[-1].load_state_dict(checkpoint["obs_norm"])
+        env.transform[-1].freeze()
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.dagger.lr)
     return Student(base, env, features, actor, optim, exponents)
+
+
+def init_checkpoint(cfg: DistillConfig) -> dict:
+    """``student.init``'s checkpoint, read safely; ValueError naming ``student.init`` where it
+    is no checkpoint or its student differs from ``cfg.student`` (the first field that
+    does)."""
+    try:
+        checkpoint = load_checkpoint(cfg.student.init)
+    except ValueError as err:
+        raise ValueError(f"student.init: {err}") from None
+    sections = ("env", "agent", "model")
+    ours, defaults = dataclasses.asdict(cfg.student_run()), dataclasses.asdict(TrainConfig())
+    differ = differences({k: checkpoint["config"].get(k) for k in sections},
+                         {k: ours[k] for k in sections}, {k: defaults[k] for k in sections})
+    if differ:
+        key, theirs, now = differ[0]
+        raise ValueError(f"student.init: {cfg.student.init} has student.{key}={theirs!r}, "
+                         f"this run student.{key}={now!r} (a fine-tune keeps the student)")
+    return checkpoint
 
 
 def teacher_of(config: TeacherConfig, env: TransformedEnv) -> Teacher:
@@ -125,7 +151,8 @@ def trained_by(cfg: DistillConfig, iterations: int, frames: int, approach: int) 
     if t.handover:
         source += (f" (its law taking over beyond the target only where {t.handover} steps of "
                    f"it ahead touch nothing)")
-    dagger = "DAgger after the first"
+    dagger = (f"fine-tuned from {cfg.student.init}, DAgger from the first" if cfg.student.init
+              else "DAgger after the first")
     if d.collision_weight != 1.0:
         dagger += (f"; the states up to {d.collision_horizon} steps before its own "
                    f"collisions weighted {d.collision_weight:g}")
@@ -170,7 +197,7 @@ def distill(cfg: DistillConfig, out: Path, resume: bool = False) -> Path:
     for iteration in range(first, cfg.dagger.iterations):
         part, new_frames, new_approach = label_iteration(
             student.env, student.features, student.actor, teacher, student.exponents,
-            cfg.dagger, iteration, generator)
+            cfg.dagger, iteration, generator, iteration == 0 and not cfg.student.init)
         frames, approach = frames + new_frames, approach + new_approach
         aggregate.add(part)
         x, y, w = aggregate.all()
