@@ -640,8 +640,8 @@ def test_a_fine_tune_starts_from_its_checkpoint_and_labels_its_own_states_at_onc
         tmp_path, monkeypatch, capsys):
     """``student.init``: the run starts from the checkpoint's network and frozen normaliser
     (at a learning rate of 1e-12 it ends where it began) and the student drives every
-    rollout, iteration 0's included; a checkpoint of another student is refused by the
-    field that differs."""
+    rollout, iteration 0's included; its resume needs only its own state; a checkpoint of
+    another student is refused by the field that differs."""
     flags = ["student.env.num_envs=4", "dagger.steps=6", "dagger.epochs=1",
              "dagger.dagger_epochs=1", "dagger.yardstick=2", "dagger.approach=8",
              "dagger.iterations=1"]
@@ -669,7 +669,13 @@ def test_a_fine_tune_starts_from_its_checkpoint_and_labels_its_own_states_at_onc
     assert spec == their_spec
     assert all(torch.equal(x, y) if isinstance(x, torch.Tensor) else x == y
                for x, y in zip(leaves, theirs, strict=True))
-    capsys.readouterr()
+    # a resumed fine-tune goes on from its own state: the checkpoint it began from may be gone
+    moved = tmp_path / "moved.pt"
+    (first / "checkpoint_final.pt").rename(moved)
+    main(["--preset", "smoke", "--out", str(tuned), *flags[:-1], "dagger.iterations=2",
+          f"student.init={init}", "dagger.lr=1e-12", "--resume"])
+    assert "resumed after iteration 1 of 2" in capsys.readouterr().out
+    moved.rename(first / "checkpoint_final.pt")
     with pytest.raises(SystemExit):
         main(["--preset", "smoke", "--out", str(tmp_path / "other"), *flags,
               f"student.init={init}", "student.model.hidden=[32]"])

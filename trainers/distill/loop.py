@@ -76,8 +76,7 @@ class Student(NamedTuple):
 
 
 def student_of(cfg: DistillConfig) -> Student:
-    """The student of ``cfg``: fresh (torch's random state seeded by the caller), or with
-    ``student.init`` that checkpoint's network and frozen input normaliser."""
+    """A fresh student of ``cfg`` (torch's random state seeded by the caller)."""
     run = cfg.student_run()
     base = make_base_env(run, training=True)
     inputs = policy_input(run, base)
@@ -88,13 +87,15 @@ def student_of(cfg: DistillConfig) -> Student:
                          if not isinstance(t, (PowerActionMap, GearActionMap))])
     actor, _ = build_models(run)
     exponents = torch.tensor(run.agent.action_exponents, device=base.device)
-    if cfg.student.init:
-        checkpoint = init_checkpoint(cfg)
-        actor.load_state_dict(checkpoint["actor"])
-        env.transform[-1].load_state_dict(checkpoint["obs_norm"])
-        env.transform[-1].freeze()
     optim = torch.optim.Adam(actor.parameters(), lr=cfg.dagger.lr)
     return Student(base, env, features, actor, optim, exponents)
+
+
+def load_student(student: Student, actor: dict, obs_norm: dict) -> None:
+    """Put a saved network and input normaliser (frozen) into ``student``."""
+    student.actor.load_state_dict(actor)
+    student.env.transform[-1].load_state_dict(obs_norm)
+    student.env.transform[-1].freeze()
 
 
 def init_checkpoint(cfg: DistillConfig) -> dict:
@@ -173,6 +174,9 @@ def distill(cfg: DistillConfig, out: Path, resume: bool = False) -> Path:
     torch.manual_seed(cfg.seed)
     generator = torch.Generator().manual_seed(cfg.seed)
     student = student_of(cfg)
+    if saved is None and cfg.student.init:  # a resumed run goes on from its own network
+        checkpoint = init_checkpoint(cfg)
+        load_student(student, checkpoint["actor"], checkpoint["obs_norm"])
     teacher = teacher_of(cfg.teacher, student.env)
     norm = student.env.transform[-1]
     aggregate = Aggregate(out)
@@ -183,10 +187,8 @@ def distill(cfg: DistillConfig, out: Path, resume: bool = False) -> Path:
         first, frames, approach = (saved[k] for k in ("iterations_done", "frames",
                                                        "approach_states"))
         rows, elapsed = saved["rows"], saved["wall_s"]
-        student.actor.load_state_dict(saved["actor"])
+        load_student(student, saved["actor"], saved["obs_norm"])
         student.optim.load_state_dict(saved["optim"])
-        norm.load_state_dict(saved["obs_norm"])
-        norm.freeze()
         generator.set_state(saved["generator"])
         torch.set_rng_state(saved["torch_rng"])
         student.base.restore(saved["env"])
