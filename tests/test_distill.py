@@ -32,7 +32,7 @@ from trainers.config import env_configs
 from trainers.distill import labels
 from trainers.distill.cli import main
 from trainers.distill.config import PRESETS, DaggerConfig, load_distill_config
-from trainers.distill.fit import fit, passes
+from trainers.distill.fit import fit, passes, plan
 from trainers.distill.labels import (
     approach_poses,
     approach_states,
@@ -116,6 +116,7 @@ def test_approach_states_carry_the_laws_forward_control():
     ("student.agent.action_exponents=[0.5,1.0]", "student.agent.action_exponents"),
     ("student.agent.action_exponents=[3.0,inf]", "student.agent.action_exponents"),
     ("dagger.dagger_epochs=0", "dagger.dagger_epochs"), ("dagger.lr_decay=1", "dagger.lr_decay"),
+    ("dagger.final_epochs=-1", "dagger.final_epochs"),
     ("teacher.docking.settle=-0.01", "teacher.docking.settle"),
     ("teacher.docking.settle=nan", "teacher.docking.settle"),
     ("teacher.docking.retry=-1.0", "teacher.docking.retry"),
@@ -196,7 +197,7 @@ def test_the_policy_alone_preset_is_the_committed_runs_config():
         "approach_reach": 2.0, "approach_weight": 10.0, "collision_weight": 10.0,
         "collision_horizon": 10, "stall_weight": 5.0, "stall_from": 10, "epochs": 32,
         "dagger_epochs": 8, "batch_size": 1024, "lr": 1e-3, "lr_decay": True,
-        "replay": 0.0, "yardstick": 200}
+        "replay": 0.0, "final_epochs": 0, "yardstick": 200}
     assert cfg.seed == 1
 
 
@@ -460,6 +461,16 @@ def test_the_students_layers_are_its_model_sections():
     actor, _ = build_models(cfg.student_run())
     linears = [m for m in actor.modules() if isinstance(m, torch.nn.Linear)]
     assert [m.out_features for m in linears[:-1]] == [24] * 3
+
+
+@pytest.mark.parametrize(("final_epochs", "last"), [(0, (3, 0.5)), (7, (7, 0.0))])
+def test_a_closing_refit_makes_the_last_fit_passes_over_the_whole_aggregate(final_epochs, last):
+    cfg = DaggerConfig(iterations=4, epochs=5, dagger_epochs=3, replay=0.5,
+                       final_epochs=final_epochs)
+    assert [plan(cfg, k) for k in range(4)] == [(5, 0.5), (3, 0.5), (3, 0.5), last]
+    # a single iteration is the first and the last: the closing refit wins
+    one = dataclasses.replace(cfg, iterations=1)
+    assert plan(one, 0) == ((7, 0.0) if final_epochs else (5, 0.5))
 
 
 def test_the_full_refit_passes_over_every_state_in_a_fresh_order():

@@ -78,7 +78,9 @@ class DaggerConfig:
     final-approach states and a fresh uniform draw of r times the new ones among the other
     earlier states, weighted to stand for all of them
     (:func:`trainers.distill.fit.passes`: a pass's work bounded, the run's linear in the
-    iterations). ``yardstick``: episodes per check after each iteration."""
+    iterations). ``final_epochs`` > 0: the last iteration's fit is that many passes over the
+    whole aggregate instead (a closing refit of the replayed run; 0: as any later
+    iteration's). ``yardstick``: episodes per check after each iteration."""
 
     iterations: int = 2
     steps: int = 400
@@ -96,6 +98,7 @@ class DaggerConfig:
     lr: float = 1e-3
     lr_decay: bool = False
     replay: float = 0.0
+    final_epochs: int = 0
     yardstick: int = 200
 
 
@@ -128,6 +131,8 @@ def check(cfg: DistillConfig) -> None:
                        ("stall_from", 1000)):
         value = getattr(d, name)
         require(1 <= value <= high, f"dagger.{name}", f"an int in [1, {high}]", value)
+    require(0 <= d.final_epochs <= 1000, "dagger.final_epochs", "an int in [0, 1000] (0: the "
+            "last fit as the others)", d.final_epochs)
     require(0 <= d.approach <= 1 << 20, "dagger.approach", "an int in [0, 1048576]",
             d.approach)
     for name in ("lr", "approach_reach", "approach_weight", "collision_weight",

@@ -13,6 +13,16 @@ from trainers.heads import BinnedGearHead, imitation_error
 from trainers.utils import NORMALISED
 
 
+def plan(cfg: DaggerConfig, iteration: int) -> tuple[int, float]:
+    """The passes and the replay ratio of ``iteration``'s fit (counted from 0):
+    ``cfg.epochs`` after the first, ``cfg.dagger_epochs`` after each later one, replayed by
+    ``cfg.replay``; the last of ``cfg.iterations``, where ``cfg.final_epochs`` > 0, that many
+    passes over the whole aggregate (replay 0)."""
+    if iteration == cfg.iterations - 1 and cfg.final_epochs:
+        return cfg.final_epochs, 0.0
+    return (cfg.epochs if iteration == 0 else cfg.dagger_epochs), cfg.replay
+
+
 def passes(total: int, new: int, epochs: int, replay: float, generator: torch.Generator,
            kept: tuple[int, int] = (0, 0)) -> tuple[list[torch.Tensor], torch.Tensor]:
     """The order of each of ``epochs`` passes over an aggregate of ``total`` states whose last

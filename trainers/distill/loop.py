@@ -22,7 +22,7 @@ from trainers.checkpoint import load_checkpoint
 from trainers.config import TrainConfig, differences
 from trainers.distill.aggregate import Aggregate
 from trainers.distill.config import DistillConfig
-from trainers.distill.fit import fit, passes
+from trainers.distill.fit import fit, passes, plan
 from trainers.distill.labels import label_iteration
 from trainers.distill.state import STATE, load_state, save_state
 from trainers.utils import build_models, make_base_env, policy_input
@@ -203,10 +203,10 @@ def distill(cfg: DistillConfig, out: Path, resume: bool = False) -> Path:
         frames, approach = frames + new_frames, approach + new_approach
         aggregate.add(part)
         x, y, w = aggregate.all()
-        epochs = cfg.dagger.epochs if iteration == 0 else cfg.dagger.dagger_epochs
+        epochs, replay = plan(cfg.dagger, iteration)
         first_rows = aggregate.parts[0][0].shape[0]  # its final-approach states last
-        order, scale = passes(x.shape[0], part[0].shape[0], epochs, cfg.dagger.replay,
-                              generator, kept=(first_rows - approach, first_rows))
+        order, scale = passes(x.shape[0], part[0].shape[0], epochs, replay, generator,
+                              kept=(first_rows - approach, first_rows))
         w = w * scale.to(w.device)  # the drawn earlier states stand for all of them
         loss = fit(student.actor, norm.to_observation_norm(), x, y, w, order, cfg.dagger,
                    student.optim)
