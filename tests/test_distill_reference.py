@@ -5,9 +5,10 @@ refactor into a config tree (``tests/data/distill_reference.pt``, written at 356
 flat ``DistillConfig`` with the same settings and a hybrid teacher checkpoint of the smoke
 preset with the brake and the docking law).
 
-Bit for bit on the CPU kernel set the reference was written with (AVX512); elsewhere the
-labels and weights still are (they are exact arithmetic on the same draws) and the inputs
-and networks agree to float32 rounding (seen: 2.4e-6 under ``ATEN_CPU_CAPABILITY=default``).
+Bit for bit on the CPUs the reference was written on (AMD, torch's AVX512 kernels);
+elsewhere the weights still are (counts of the same draws) and the labels, inputs and
+networks agree to float32 rounding (seen: 2.4e-6 under ``ATEN_CPU_CAPABILITY=default``; on an
+Intel Xeon with the same AVX512 kernels, 1 ulp in 8 of iteration 0's 672 labels).
 """
 
 from __future__ import annotations
@@ -35,6 +36,15 @@ from trainers.distill.config import (
 
 REFERENCE = Path(__file__).parent / "data" / "distill_reference.pt"
 REFERENCE_KERNELS = "AVX512"
+REFERENCE_VENDOR = "AuthenticAMD"
+
+
+def on_the_reference_cpu() -> bool:
+    """Whether this CPU rounds as the reference's did: its vendor (``/proc/cpuinfo``) and
+    torch's kernel set both the reference's."""
+    cpuinfo = Path("/proc/cpuinfo")
+    vendor = cpuinfo.exists() and f": {REFERENCE_VENDOR}" in cpuinfo.read_text()
+    return vendor and torch.backends.cpu.get_cpu_capability() == REFERENCE_KERNELS
 
 PINNED = DistillConfig(
     teacher=TeacherConfig(
@@ -79,11 +89,12 @@ def test_the_distiller_gives_the_labels_and_checkpoints_of_the_one_before_its_re
     finally:
         torch.set_num_threads(threads)
     reference = torch.load(REFERENCE, weights_only=True)
-    exact = torch.backends.cpu.get_cpu_capability() == REFERENCE_KERNELS
+    exact = on_the_reference_cpu()
     for k, (inputs, labels, weights) in enumerate(reference["data"]):
         ours = torch.load(tmp_path / "dagger_data" / f"iteration_{k:03d}.pt",
                           weights_only=True)
-        assert torch.equal(ours[1], labels) and torch.equal(ours[2], weights)
+        assert torch.equal(ours[2], weights)
+        assert_same(ours[1], labels, exact, f"the labels of iteration {k}")
         assert_same(ours[0], inputs, exact, f"the inputs of iteration {k}")
     assert reference["data"][0][2].max() == 10.0  # a collision was weighted
     for name in ("checkpoint_final.pt", "checkpoint_best.pt"):
