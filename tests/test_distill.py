@@ -22,9 +22,8 @@ from torchrl.envs import Compose, TransformedEnv
 from tests.test_agent import rows_predict_as_alone
 from tests.test_teacher import teacher_on
 from torchpark import ParkingConfig, ParkingEnv, SlotGaps
-from torchpark.aids.config import DockingConfig, NearGoalStarts
+from torchpark.aids.config import DockingConfig
 from torchpark.aids.docking import docking_action, error_from_goal
-from torchpark.aids.starts import near_goal_poses
 from torchpark.experts import PlannerConfig, TeacherConfig
 from torchpark.transforms.actions import PowerActionMap, gear_inverse, power_map_inverse
 from torchpark.transforms.features import GoalFrameFeatures
@@ -39,7 +38,6 @@ from trainers.distill.labels import (
     Rollout,
     approach_poses,
     approach_states,
-    far_start,
     label_iteration,
     rollout,
     steps_in_stall,
@@ -118,9 +116,6 @@ def test_approach_states_carry_the_laws_forward_control():
     ("dagger.collision_weight=inf", "dagger.collision_weight"),
     ("dagger.collision_horizon=0", "dagger.collision_horizon"),
     ("dagger.stall_from=0", "dagger.stall_from"), ("dagger.stall_from=1.5", "dagger.stall_from"),
-    ("dagger.start_weight=0.0", "dagger.start_weight"),
-    ("dagger.start_weight=nan", "dagger.start_weight"),
-    ("dagger.start_steps=0", "dagger.start_steps"),
     ("student.agent.action_exponents=[0.5,1.0]", "student.agent.action_exponents"),
     ("student.agent.action_exponents=[3.0,inf]", "student.agent.action_exponents"),
     ("dagger.dagger_epochs=0", "dagger.dagger_epochs"), ("dagger.lr_decay=1", "dagger.lr_decay"),
@@ -203,8 +198,7 @@ def test_the_policy_alone_preset_is_the_committed_runs_config():
     assert dataclasses.asdict(cfg.dagger) == {
         "iterations": 22, "steps": 400, "noise": 0.05, "approach": 32768,
         "approach_reach": 2.0, "approach_weight": 10.0, "collision_weight": 10.0,
-        "collision_horizon": 10, "stall_weight": 5.0, "stall_from": 10,
-        "start_weight": 1.0, "start_steps": 50, "epochs": 32,
+        "collision_horizon": 10, "stall_weight": 5.0, "stall_from": 10, "epochs": 32,
         "dagger_epochs": 8, "batch_size": 1024, "lr": 1e-3, "lr_decay": True,
         "replay": 0.0, "final_epochs": 0, "yardstick": 200}
     assert cfg.seed == 1
@@ -426,7 +420,7 @@ def test_a_stall_is_a_window_of_one_episode_that_ends_near_where_it_began():
 
 
 @pytest.mark.slow
-def test_a_rollout_counts_the_steps_to_the_drivers_collisions_and_from_its_episodes_starts():
+def test_a_rollout_counts_the_steps_to_the_drivers_collisions():
     # A driver that floors it forwards, turning a little, at 90 %: into the parked cars.
     scfg = PRESETS["smoke"]().student_run()
     base = make_base_env(scfg, training=True, num_envs=8, seed=0)
@@ -436,11 +430,7 @@ def test_a_rollout_counts_the_steps_to_the_drivers_collisions_and_from_its_episo
     teacher = teacher_on(env)
     floor_it = torch.tensor([1.0, 1.0, 0.3, 1.0, 0.0])  # gear, (speed, steer) per gear
 
-    distances = []  # the rear axle's from the goal, in each state the driver acts in
-
     def driver(td):
-        sim = base.state
-        distances.append((sim.pose[:, :2] - sim.goal[:, :2]).norm(dim=-1))
         return td.set("action", floor_it.expand(td.shape[0], 5))
 
     steps = 40
@@ -448,15 +438,6 @@ def test_a_rollout_counts_the_steps_to_the_drivers_collisions_and_from_its_episo
                 torch.Generator().manual_seed(0))
     assert all(t.shape[0] == steps * 8 for t in r)
     assert not r.stalled.any()  # 40 steps: no 100-step window fits
-    # Each episode's steps count from 0 at its start, where its origin is the rear axle's
-    # distance from the goal; both hold through the episode.
-    age, origin = r.age.reshape(steps, 8), r.origin.reshape(steps, 8)
-    assert (age[0] == 0).all() and (age == 0).sum() > 8  # episodes ended and began
-    went_on = age[1:] != 0
-    assert torch.equal(age[1:][went_on], age[:-1][went_on] + 1)
-    assert torch.equal(origin[1:][went_on], origin[:-1][went_on])
-    began = age == 0
-    assert torch.equal(origin[began], torch.stack(distances)[began])
     ahead = r.ahead.reshape(steps, 8)
     assert (ahead == 1).sum() >= 4  # collisions
     # Within a row the count runs down by one a step to the colliding step's 1.
@@ -464,36 +445,32 @@ def test_a_rollout_counts_the_steps_to_the_drivers_collisions_and_from_its_episo
     assert torch.equal(ahead[1:][before], ahead[:-1][before] - 1)
 
 
-def test_a_states_weight_is_the_product_of_its_collision_stall_and_opening_weights(
+def test_a_states_weight_is_the_product_of_its_collision_and_stall_weights(
         monkeypatch):
     inf = float("inf")
     states = Rollout(
         inputs=torch.zeros(5, 3), labels=torch.zeros(5, 2),
         ahead=torch.tensor([1.0, inf, inf, 3.0, inf]),
-        stalled=torch.tensor([False, True, False, False, True]),
-        age=torch.tensor([0, 3, 4, 0, 2]), origin=torch.tensor([10.0, 10.0, 10.0, 5.0, 5.0]))
+        stalled=torch.tensor([False, True, False, True, True]))
     monkeypatch.setattr(labels, "rollout", lambda *args: states)
     base = SimpleNamespace(action_spec=SimpleNamespace(space=SimpleNamespace(
         high=torch.ones(1, 2))), occupancy=0.0)
     cfg = DaggerConfig(approach=0, collision_weight=3.0, collision_horizon=2, stall_weight=5.0,
-                       stall_from=1, start_weight=7.0, start_steps=4)
+                       stall_from=1)
+    env = SimpleNamespace(base_env=base, transform=[SimpleNamespace(freeze=lambda: None)])
     (x, y, w), frames, approach = label_iteration(
-        SimpleNamespace(base_env=base), None, None, None, torch.ones(2), cfg, 1,
-        torch.Generator(), False, 6.0)
-    # a collision 1 step ahead at an episode's start 10 m out; a stall in the 4th step from
-    # it; its 5th step; a start 5 m out, nearer than 6 m; a stall there
-    assert torch.equal(w, torch.tensor([21.0, 35.0, 1.0, 1.0, 5.0]).repeat(6))
+        env, None, None, None, torch.ones(2), cfg, 1, torch.Generator(), False)
+    # a collision 1 step ahead; a stall; neither; a stall 3 steps before a collision beyond
+    # the horizon; a stall
+    assert torch.equal(w, torch.tensor([3.0, 5.0, 1.0, 5.0, 5.0]).repeat(6))
+    cfg.collision_horizon = 3  # both hold at the 4th state: the weights multiply
+    (_, _, w), _, _ = label_iteration(env, None, None, None, torch.ones(2), cfg, 1,
+                                      torch.Generator(), False)
+    assert torch.equal(w[:5], torch.tensor([3.0, 5.0, 1.0, 15.0, 5.0]))
+    (_, _, w), _, _ = label_iteration(env, None, None, None, torch.ones(2), cfg, 0,
+                                      torch.Generator(), False)
+    assert torch.equal(w[:5], torch.tensor([3.0, 1.0, 1.0, 3.0, 1.0]))  # stalls from 1 on
     assert frames == 30 and approach == 0 and x.shape == (30, 3) and y.shape == (30, 2)
-
-
-def test_no_near_goal_start_lies_beyond_far_start():
-    near = NearGoalStarts(reach=6.0, lateral=1.0, candidates=64)
-    goal = torch.tensor([[3.0, -2.0, 0.7]]).expand(512, 3)
-    poses = near_goal_poses(goal, near, torch.Generator().manual_seed(0))
-    distance = (poses[..., :2] - goal[:, None, :2]).norm(dim=-1)
-    assert far_start(near) == pytest.approx(37.0 ** 0.5)
-    assert 0.98 * far_start(near) < distance.max() <= far_start(near) + 1e-5
-    assert far_start(None) == 0.0  # every start the paper's
 
 
 def test_a_gear_head_is_scored_on_its_gear_and_that_gears_pair_only():

@@ -70,10 +70,7 @@ class DaggerConfig:
     rollout states from which the driver collides within ``collision_horizon`` steps (1: as
     any other); ``stall_weight``: of those from which the student stalls
     (:func:`trainers.distill.labels.steps_in_stall`; the weights multiply where both hold)
-    in the iterations from ``stall_from`` on (counted from 0 as in ``dagger.csv``);
-    ``start_weight``: of the first ``start_steps`` states of each episode that begins
-    farther from its goal than the student's near-goal starts reach
-    (:func:`trainers.distill.labels.far_start`: the paper's uniform starts). The fit:
+    in the iterations from ``stall_from`` on (counted from 0 as in ``dagger.csv``). The fit:
     ``epochs`` / ``dagger_epochs`` passes over all the data after the first / each later
     iteration, minibatches of ``batch_size``, Adam at ``lr`` (falling to 0 along a cosine
     over each fit with ``lr_decay``); ``replay``: 0, each pass over the whole aggregate (its
@@ -95,8 +92,6 @@ class DaggerConfig:
     collision_horizon: int = 10
     stall_weight: float = 1.0
     stall_from: int = 1
-    start_weight: float = 1.0
-    start_steps: int = 50
     epochs: int = 32
     dagger_epochs: int = 16
     batch_size: int = 1024
@@ -133,7 +128,7 @@ def check(cfg: DistillConfig) -> None:
     for name, high in (("iterations", 1000), ("steps", 100_000), ("epochs", 1000),
                        ("dagger_epochs", 1000), ("batch_size", 1 << 20),
                        ("yardstick", 65536), ("collision_horizon", 1000),
-                       ("stall_from", 1000), ("start_steps", 100_000)):
+                       ("stall_from", 1000)):
         value = getattr(d, name)
         require(1 <= value <= high, f"dagger.{name}", f"an int in [1, {high}]", value)
     require(0 <= d.final_epochs <= 1000, "dagger.final_epochs", "an int in [0, 1000] (0: the "
@@ -141,7 +136,7 @@ def check(cfg: DistillConfig) -> None:
     require(0 <= d.approach <= 1 << 20, "dagger.approach", "an int in [0, 1048576]",
             d.approach)
     for name in ("lr", "approach_reach", "approach_weight", "collision_weight",
-                 "stall_weight", "start_weight"):
+                 "stall_weight"):
         positive(f"dagger.{name}", getattr(d, name))
     require(0.0 <= d.noise <= 1.0, "dagger.noise", "in [0, 1]", d.noise)
     require(0.0 <= d.replay <= 1000.0, "dagger.replay", "in [0, 1000] (0: the whole "

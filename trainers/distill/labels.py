@@ -1,8 +1,8 @@
 """The distiller's labelled states: the rollouts, driven by the teacher (behaviour cloning)
 or the student (DAgger), noisy on every other row (DART: Laskey et al., 2017), each state
 labelled with the teacher's control there and weighted by what followed it (a collision
-within a horizon, a stall) and where it lies in its episode (its first steps from afar); the
-first iteration's final-approach states; one iteration's data (:func:`label_iteration`)."""
+within a horizon, a stall); the first iteration's final-approach states; one iteration's
+data (:func:`label_iteration`)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import torch
 from torchrl.envs import Transform, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchpark.aids.config import DockingConfig, NearGoalStarts
+from torchpark.aids.config import DockingConfig
 from torchpark.aids.starts import near_starts_free
 from torchpark.aids.step import AidState
 from torchpark.curriculum import PAPER_LEVELS
@@ -41,19 +41,17 @@ STALL_AWAY = 2.0
 
 def label_iteration(env: TransformedEnv, features: Transform, actor, teacher: Teacher,
                     exponents: torch.Tensor, cfg: DaggerConfig, iteration: int,
-                    generator: torch.Generator, teacher_drives: bool, away: float
+                    generator: torch.Generator, teacher_drives: bool
                     ) -> tuple[list[torch.Tensor], int, int]:
     """One DAgger iteration's data: a rollout of ``cfg.steps`` at each occupancy level,
     driven by the teacher where ``teacher_drives`` (a fresh student's iteration 0) and by the
     student otherwise, and in iteration 0 (with
     ``cfg.approach``) the final-approach states. A rollout state's weight is the product of
-    ``cfg.collision_weight`` (a collision within ``cfg.collision_horizon`` steps),
-    ``cfg.stall_weight`` (a stall, from ``cfg.stall_from``) and ``cfg.start_weight`` (one of
-    the first ``cfg.start_steps`` steps of an episode that began more than ``away`` m from
-    its goal: :func:`far_start`), each where it holds. Returns [inputs (B, D), labels in the
-    student's units (B, 2), weights (B,)], the rollout frames and the final-approach states
-    among them. ``env``'s normaliser is frozen after iteration 0's rollouts: the teacher's
-    states set the student's input scale."""
+    ``cfg.collision_weight`` (a collision within ``cfg.collision_horizon`` steps) and
+    ``cfg.stall_weight`` (a stall, from ``cfg.stall_from``), each where it holds. Returns
+    [inputs (B, D), labels in the student's units (B, 2), weights (B,)], the rollout frames
+    and the final-approach states among them. ``env``'s normaliser is frozen after
+    iteration 0's rollouts: the teacher's states set the student's input scale."""
     base = env.base_env
     high = base.action_spec.space.high[0]
     batches = []
@@ -63,11 +61,9 @@ def label_iteration(env: TransformedEnv, features: Transform, actor, teacher: Te
         r = rollout(env, actor, teacher, exponents, cfg.steps, teacher_drives, cfg.noise,
                     generator)
         stalls = r.stalled & (iteration >= cfg.stall_from)
-        opening = (r.age < cfg.start_steps) & (r.origin > away)
         batches.append((r.inputs, r.labels,
                         torch.where(r.ahead <= cfg.collision_horizon, cfg.collision_weight, 1.0)
-                        * torch.where(stalls, cfg.stall_weight, 1.0)
-                        * torch.where(opening, cfg.start_weight, 1.0)))
+                        * torch.where(stalls, cfg.stall_weight, 1.0)))
         frames += r.inputs.shape[0]
     if iteration == 0:
         env.transform[-1].freeze()
@@ -79,13 +75,6 @@ def label_iteration(env: TransformedEnv, features: Transform, actor, teacher: Te
                         torch.full((x.shape[0],), cfg.approach_weight, device=x.device)))
         approach += x.shape[0]
     return [torch.cat(column) for column in zip(*batches, strict=True)], frames, approach
-
-
-def far_start(near: NearGoalStarts | None) -> float:
-    """The distance from its goal, m, beyond which an episode's start is none of the student's
-    near-goal starts (``near``: up to ``reach`` m back and ``lateral`` m aside; None: every
-    start is the paper's uniform one, 0)."""
-    return 0.0 if near is None else math.hypot(near.reach, near.lateral)
 
 
 def approach_poses(goal: torch.Tensor, reach: float, law: DockingConfig,
@@ -141,16 +130,12 @@ class Rollout(NamedTuple):
     student's raw inputs (, D); the teacher's labels there in the student's units (, 2); the
     steps of dt to the collision that ends its episode (float; inf where it does not end in
     one within the rollout: :func:`steps_to_collision`); whether the driver stalls from it
-    (bool: :func:`steps_in_stall`); its episode's steps of dt before it (int64, 0 at a
-    start); the rear axle's distance from the goal at its episode's start, m (the rollout's
-    first state where the episode began before it)."""
+    (bool: :func:`steps_in_stall`)."""
 
     inputs: torch.Tensor
     labels: torch.Tensor
     ahead: torch.Tensor
     stalled: torch.Tensor
-    age: torch.Tensor
-    origin: torch.Tensor
 
 
 def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tensor, steps: int,
@@ -164,19 +149,14 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tenso
     n = env.base_env.num_envs
     high = env.base_env.action_spec.space.high[0]
     noisy = (torch.arange(n, device=env.device) % 2 == 1)[:, None]
-    inputs, labels, collided, done, positions, goals, ages, origins = ([] for _ in range(8))
+    inputs, labels, collided, done, positions, goals = ([] for _ in range(6))
     teacher.forget(torch.ones(n, dtype=torch.bool, device=env.device))
     td = env.reset()
-    origin = torch.zeros(n, device=env.device)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        for t in range(steps):
+        for _ in range(steps):
             sim = env.base_env.state
             positions.append(sim.pose[:, :2])
             goals.append(sim.goal[:, :2])
-            ages.append(sim.steps)
-            distance = (sim.pose[:, :2] - sim.goal[:, :2]).norm(dim=-1)
-            origin = distance if t == 0 else torch.where(sim.steps == 0, distance, origin)
-            origins.append(origin)
             target = power_map_inverse(teacher.label(), high, exponents)
             inputs.append(td[STUDENT_INPUT])
             labels.append(target)
@@ -197,8 +177,7 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tenso
     done = torch.stack(done)
     ahead = steps_to_collision(torch.stack(collided), done)
     stalls = steps_in_stall(torch.stack(positions), torch.stack(goals), done)
-    return Rollout(torch.cat(inputs), torch.cat(labels), ahead.reshape(-1), stalls.reshape(-1),
-                   torch.cat(ages), torch.cat(origins))
+    return Rollout(torch.cat(inputs), torch.cat(labels), ahead.reshape(-1), stalls.reshape(-1))
 
 
 def steps_in_stall(positions: torch.Tensor, goals: torch.Tensor, done: torch.Tensor,

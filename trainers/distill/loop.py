@@ -23,7 +23,7 @@ from trainers.config import TrainConfig, differences
 from trainers.distill.aggregate import Aggregate
 from trainers.distill.config import DistillConfig
 from trainers.distill.fit import fit, passes, plan
-from trainers.distill.labels import far_start, label_iteration
+from trainers.distill.labels import label_iteration
 from trainers.distill.state import STATE, load_state, save_state
 from trainers.utils import build_models, make_base_env, policy_input
 
@@ -161,9 +161,6 @@ def trained_by(cfg: DistillConfig, iterations: int, frames: int, approach: int) 
         dagger += f"; the states it stalls from weighted {d.stall_weight:g}"
         if d.stall_from != 1:
             dagger += f" from iteration {d.stall_from}"
-    if d.start_weight != 1.0:
-        dagger += (f"; the first {d.start_steps} steps of its episodes from afar weighted "
-                   f"{d.start_weight:g}")
     return (f"distilled ({', '.join(parts)}) from {source}: {iterations} iteration(s) "
             f"({dagger}), {frames:,} labelled frames and {approach:,} final-approach states")
 
@@ -202,8 +199,7 @@ def distill(cfg: DistillConfig, out: Path, resume: bool = False) -> Path:
     for iteration in range(first, cfg.dagger.iterations):
         part, new_frames, new_approach = label_iteration(
             student.env, student.features, student.actor, teacher, student.exponents,
-            cfg.dagger, iteration, generator, iteration == 0 and not cfg.student.init,
-            far_start(cfg.student.agent.aids.near_goal_starts))
+            cfg.dagger, iteration, generator, iteration == 0 and not cfg.student.init)
         frames, approach = frames + new_frames, approach + new_approach
         aggregate.add(part)
         x, y, w = aggregate.all()
