@@ -64,13 +64,11 @@ class DaggerConfig:
     """DAgger's schedule and the fit. Each of ``iterations`` runs ``steps`` steps of dt at
     each occupancy level (the teacher drives the first, the student the later ones), every
     other row with Gaussian noise of std ``noise`` (in [-1, 1] units) on its action, and
-    labels every state, and ``starts`` rollouts of ``start_steps`` steps a level from tight
-    starts (:func:`trainers.distill.labels.tight_starts`: the car within a metre of touching
-    something), labelled and weighted as the others; the first also labels ``approach``
-    final-approach states per level (0: none), drawn up to ``approach_reach`` m behind the
-    goal and weighted ``approach_weight`` times a rollout state. ``collision_weight``: the
-    weight of the rollout states from which the driver collides within ``collision_horizon``
-    steps (1: as any other); ``stall_weight``: of those from which the student stalls
+    labels every state; the first also labels ``approach`` final-approach states per level
+    (0: none), drawn up to ``approach_reach`` m behind the goal and weighted
+    ``approach_weight`` times a rollout state. ``collision_weight``: the weight of the
+    rollout states from which the driver collides within ``collision_horizon`` steps (1: as
+    any other); ``stall_weight``: of those from which the student stalls
     (:func:`trainers.distill.labels.steps_in_stall`; the weights multiply where both hold)
     in the iterations from ``stall_from`` on (counted from 0 as in ``dagger.csv``). The fit:
     ``epochs`` / ``dagger_epochs`` passes over all the data after the first / each later
@@ -87,8 +85,6 @@ class DaggerConfig:
     iterations: int = 2
     steps: int = 400
     noise: float = 0.05
-    starts: int = 0
-    start_steps: int = 25
     approach: int = 32768
     approach_reach: float = 2.0
     approach_weight: float = 1.0
@@ -132,12 +128,11 @@ def check(cfg: DistillConfig) -> None:
     for name, high in (("iterations", 1000), ("steps", 100_000), ("epochs", 1000),
                        ("dagger_epochs", 1000), ("batch_size", 1 << 20),
                        ("yardstick", 65536), ("collision_horizon", 1000),
-                       ("stall_from", 1000), ("start_steps", 1000)):
+                       ("stall_from", 1000)):
         value = getattr(d, name)
         require(1 <= value <= high, f"dagger.{name}", f"an int in [1, {high}]", value)
     require(0 <= d.final_epochs <= 1000, "dagger.final_epochs", "an int in [0, 1000] (0: the "
             "last fit as the others)", d.final_epochs)
-    require(0 <= d.starts <= 1000, "dagger.starts", "an int in [0, 1000]", d.starts)
     require(0 <= d.approach <= 1 << 20, "dagger.approach", "an int in [0, 1048576]",
             d.approach)
     for name in ("lr", "approach_reach", "approach_weight", "collision_weight",

@@ -1,8 +1,8 @@
 """The distiller's labelled states: the rollouts, driven by the teacher (behaviour cloning)
 or the student (DAgger), noisy on every other row (DART: Laskey et al., 2017), each state
 labelled with the teacher's control there and weighted by what followed it (a collision
-within a horizon, a stall); the short rollouts from tight starts (:func:`tight_starts`); the
-first iteration's final-approach states; one iteration's data (:func:`label_iteration`)."""
+within a horizon, a stall); the first iteration's final-approach states; one iteration's
+data (:func:`label_iteration`)."""
 
 from __future__ import annotations
 
@@ -10,22 +10,16 @@ import math
 from typing import NamedTuple
 
 import torch
-from tensordict import TensorDictBase
 from torchrl.envs import Transform, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchpark.aids.config import DockingConfig
 from torchpark.aids.starts import near_starts_free
 from torchpark.aids.step import AidState
-from torchpark.config import VehicleConfig
 from torchpark.curriculum import PAPER_LEVELS
 from torchpark.experts import Teacher
-from torchpark.experts.planner import arcs
 from torchpark.runner import FREEZE_DISTANCE, FREEZE_STEPS
 from torchpark.sim.geometry import wrap_angle
-from torchpark.sim.state import ParkingState
-from torchpark.sim.vehicle import vehicle_obb
-from torchpark.sim.world import World, touches_obstacle
 from torchpark.transforms.actions import (
     gear_inverse,
     gear_select,
@@ -43,12 +37,6 @@ STALL_TRAVEL = 5.0
 # ... from a state more than this far from its goal, m: nearer, the docking law's turns to
 # line the car up to the millimetre cover metres of path without going far.
 STALL_AWAY = 2.0
-# A start is tight where the car, driven this far (m) forwards or back at no or full steer,
-# would touch something: most of the student's collisions in an episode's first 50 steps
-# start so (research/experiments.md).
-TIGHT_TRAVEL = (0.5, 1.0)
-# Rounds of partial resets that redraw the rows whose start is not tight.
-TIGHT_ROUNDS = 32
 
 
 def label_iteration(env: TransformedEnv, features: Transform, actor, teacher: Teacher,
@@ -57,8 +45,7 @@ def label_iteration(env: TransformedEnv, features: Transform, actor, teacher: Te
                     ) -> tuple[list[torch.Tensor], int, int]:
     """One DAgger iteration's data: a rollout of ``cfg.steps`` at each occupancy level,
     driven by the teacher where ``teacher_drives`` (a fresh student's iteration 0) and by the
-    student otherwise, then ``cfg.starts`` rollouts of ``cfg.start_steps`` from tight starts
-    (:func:`tight_starts`; their tight rows' states), and in iteration 0 (with
+    student otherwise, and in iteration 0 (with
     ``cfg.approach``) the final-approach states. A rollout state's weight is the product of
     ``cfg.collision_weight`` (a collision within ``cfg.collision_horizon`` steps) and
     ``cfg.stall_weight`` (a stall, from ``cfg.stall_from``), each where it holds. Returns
@@ -71,20 +58,13 @@ def label_iteration(env: TransformedEnv, features: Transform, actor, teacher: Te
     frames = approach = 0
     for level in PAPER_LEVELS:
         base.occupancy = level
-        runs = [(rollout(env, actor, teacher, exponents, cfg.steps, teacher_drives, cfg.noise,
-                         generator), None)]
-        for _ in range(cfg.starts):
-            start, keep = tight_starts(env)
-            runs.append((rollout(env, actor, teacher, exponents, cfg.start_steps,
-                                 teacher_drives, cfg.noise, generator, start),
-                         keep.repeat(cfg.start_steps)))
-        for r, keep in runs:
-            stalls = r.stalled & (iteration >= cfg.stall_from)
-            weights = (torch.where(r.ahead <= cfg.collision_horizon, cfg.collision_weight, 1.0)
-                       * torch.where(stalls, cfg.stall_weight, 1.0))
-            kept = slice(None) if keep is None else keep
-            batches.append((r.inputs[kept], r.labels[kept], weights[kept]))
-            frames += batches[-1][0].shape[0]
+        r = rollout(env, actor, teacher, exponents, cfg.steps, teacher_drives, cfg.noise,
+                    generator)
+        stalls = r.stalled & (iteration >= cfg.stall_from)
+        batches.append((r.inputs, r.labels,
+                        torch.where(r.ahead <= cfg.collision_horizon, cfg.collision_weight, 1.0)
+                        * torch.where(stalls, cfg.stall_weight, 1.0)))
+        frames += r.inputs.shape[0]
     if iteration == 0:
         env.transform[-1].freeze()
     for level in PAPER_LEVELS if cfg.approach and iteration == 0 else ():
@@ -158,39 +138,9 @@ class Rollout(NamedTuple):
     stalled: torch.Tensor
 
 
-def tight(state: ParkingState, world: World, car: VehicleConfig) -> torch.Tensor:
-    """Whether the car of each row of ``state`` (N rows) would touch an obstacle or wall
-    driven :data:`TIGHT_TRAVEL` m forwards or back at no or full steer (exact arcs of the
-    bicycle: :func:`~torchpark.experts.planner.arcs`): (N,) bool."""
-    k = math.tan(car.max_steer) / car.wheelbase
-    travel = torch.tensor([s * d for d in TIGHT_TRAVEL for s in (1.0, -1.0)],
-                          device=state.pose.device).repeat_interleave(3)
-    curvature = torch.tensor((-k, 0.0, k), device=state.pose.device).repeat(
-        2 * len(TIGHT_TRAVEL))
-    boxes = vehicle_obb(arcs(state.pose, travel, curvature), car)
-    return touches_obstacle(boxes, world, state.present[:, None, :]).any(-1)
-
-
-def tight_starts(env: TransformedEnv) -> tuple[TensorDictBase, torch.Tensor]:
-    """Every row of ``env`` reset, then the rows whose start is not :func:`tight` redrawn
-    (partial resets, through the env's transforms) for up to :data:`TIGHT_ROUNDS` rounds.
-    Returns the last reset's output and which rows start tight (N,) bool."""
-    base = env.base_env
-    td = env.reset()
-    for _ in range(TIGHT_ROUNDS):
-        ok = tight(base.state, base.world, base.config.vehicle)
-        if bool(ok.all()):
-            break
-        td["_reset"] = ~ok[:, None]
-        td = env.reset(td)
-    return td, tight(base.state, base.world, base.config.vehicle)
-
-
 def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tensor, steps: int,
-            teacher_drives: bool, noise: float, generator: torch.Generator,
-            start: TensorDictBase | None = None) -> Rollout:
-    """``steps`` steps of dt of ``env`` from ``start`` (a reset's output of every row; None:
-    every row reset first), driven by the teacher's
+            teacher_drives: bool, noise: float, generator: torch.Generator) -> Rollout:
+    """``steps`` steps of dt of ``env`` (every row reset first), driven by the teacher's
     labels or the student's deterministic actions, noisy on every other row (Gaussian,
     ``noise`` times the env's bounds, added to the env's action). Labels each state with the
     teacher's control in the student's units (u, the (speed, steer) its power map with
@@ -201,7 +151,7 @@ def rollout(env: TransformedEnv, actor, teacher: Teacher, exponents: torch.Tenso
     noisy = (torch.arange(n, device=env.device) % 2 == 1)[:, None]
     inputs, labels, collided, done, positions, goals = ([] for _ in range(6))
     teacher.forget(torch.ones(n, dtype=torch.bool, device=env.device))
-    td = env.reset() if start is None else start
+    td = env.reset()
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(steps):
             sim = env.base_env.state

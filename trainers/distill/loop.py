@@ -157,9 +157,6 @@ def trained_by(cfg: DistillConfig, iterations: int, frames: int, approach: int) 
     if d.collision_weight != 1.0:
         dagger += (f"; the states up to {d.collision_horizon} steps before its own "
                    f"collisions weighted {d.collision_weight:g}")
-    if d.starts:
-        dagger += (f"; {d.starts} rollouts of {d.start_steps} steps a level from tight starts "
-                   f"per iteration")
     if d.stall_weight != 1.0:
         dagger += f"; the states it stalls from weighted {d.stall_weight:g}"
         if d.stall_from != 1:
